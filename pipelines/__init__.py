@@ -1,0 +1,1 @@
+"""End-to-end flows: demo, evaluation, benchmarks, visualisation entry points."""
