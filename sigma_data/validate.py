@@ -164,7 +164,8 @@ def _episode_bounds(episode_index: np.ndarray) -> dict[int, tuple[int, int]]:
 
 
 def _sample_rows(start: int, stop: int, n: int) -> list[int]:
-    return sorted({int(round(x)) for x in np.linspace(start, stop - 1, max(1, min(n, stop - start)))})
+    rows = np.linspace(start, stop - 1, max(1, min(n, stop - start))).round().astype(int)
+    return sorted(set(rows.tolist()))
 
 
 def check_structure(chk: _Checker, features: dict, cameras: list[str], kind: str) -> bool:
