@@ -1,0 +1,534 @@
+"""Episode viewer: one episode of a sigma dataset (dense or keyframe) logged to Rerun in 3D.
+
+What gets logged (entity paths; ``world`` is z-up, metres):
+
+- ``world/cameras/<cam>``: camera-to-world ``Transform3D`` + ``Pinhole`` (K, OpenCV RDF axes) per frame;
+  ``.../rgb`` JPEG-compressed colour, ``.../depth`` metric ``DepthImage`` (back-projects in the 3D view).
+- ``world/point_cloud``: the fused colour cloud of all cameras (depth back-projected with K and E),
+  subsampled to ``point_budget`` points per frame.
+- ``world/eef``: the end-effector (grip site) pose per frame; ``world/eef_trajectory``: its whole path.
+- ``world/keyframes/kf_<k>``: each keyframe pose as axes, with a label carrying its gripper state.
+- ``world/goal``: the goal keyframe pose of the current frame; ``world/goal_link``: arrow eef -> goal.
+- ``timeseries/state/<name>``, ``timeseries/action/<name>``, ``timeseries/goal_distance``: scalar plots.
+- ``instruction``: a markdown ``TextDocument`` with the instruction and episode facts.
+
+Timelines: ``frame_index`` (sequence), ``time`` (seconds since episode start) and ``keyframe`` (decision
+point ordinal: 0 = start frame, k = k-th keyframe; only decision-point frames exist on it, so scrubbing it
+steps from keyframe to keyframe).
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Literal
+
+import numpy as np
+import rerun as rr
+import torch
+from lerobot.datasets import LeRobotDataset, LeRobotDatasetMetadata
+from tqdm import tqdm
+
+logger = logging.getLogger(__name__)
+
+DatasetKind = Literal["dense", "keyframe"]
+DENSE_ACTION_DIM = 7
+KEYFRAME_ACTION_DIM = 9
+STATE_KEY = "observation.state"
+ACTION_KEY = "action"
+IS_KEYFRAME_KEY = "sigma.is_keyframe"
+NEXT_KEYFRAME_KEY = "sigma.next_keyframe_index"
+SIDECAR = Path("meta") / "sigma.json"
+AXIS_LENGTH_M = 0.05
+OPEN_COLOR = (40, 200, 80)
+CLOSED_COLOR = (230, 60, 40)
+
+
+@dataclass(frozen=True)
+class CameraFeatures:
+    """Feature keys of one camera, following the sigma data contract."""
+
+    name: str
+    rgb: str
+    depth: str | None
+    intrinsics: str | None  # per-frame (3, 3) feature, if present
+    extrinsics: str | None  # per-frame (4, 4) camera-to-world feature, if present
+    static_intrinsics: np.ndarray | None  # from the RGB feature's info["sigma.intrinsics"]
+    static_extrinsics: np.ndarray | None  # from the RGB feature's info["sigma.extrinsics"]
+
+
+@dataclass
+class EpisodeTracks:
+    """Numeric per-frame columns of one episode (episode-relative frame order).
+
+    ``state`` (N, S) and ``action`` (N, A) float32; ``timestamps`` (N,) seconds; ``is_keyframe`` (N,) bool and
+    ``next_keyframe`` (N,) episode-relative indices, present for dense datasets only; ``tasks`` (N,) strings.
+    """
+
+    frame_index: np.ndarray
+    timestamps: np.ndarray
+    state: np.ndarray
+    action: np.ndarray
+    state_names: list[str]
+    action_names: list[str]
+    tasks: list[str]
+    is_keyframe: np.ndarray | None = None
+    next_keyframe: np.ndarray | None = None
+
+
+@dataclass(frozen=True)
+class EpisodeLogSummary:
+    """What ``log_episode`` logged; printed as the CLI's one-line summary."""
+
+    kind: DatasetKind
+    episode_index: int
+    num_frames: int
+    cameras: tuple[str, ...]
+    num_keyframes: int
+    max_points_per_frame: int
+
+    def one_line(self) -> str:
+        return (
+            f"episode {self.episode_index} ({self.kind}): {self.num_frames} frames, "
+            f"{len(self.cameras)} cameras [{', '.join(self.cameras)}], {self.num_keyframes} keyframes, "
+            f"<= {self.max_points_per_frame} cloud points per frame"
+        )
+
+
+# ---------------------------------------------------------------------------------------------- discovery
+
+
+def discover_cameras(features: dict[str, dict]) -> list[CameraFeatures]:
+    """Cameras of a dataset: every ``observation.images.<cam>`` RGB feature (not a depth map).
+
+    Raises ``ValueError`` naming the camera when it has neither per-frame nor static calibration.
+    """
+    cameras = []
+    for key, feat in features.items():
+        if not key.startswith("observation.images.") or feat.get("info", {}).get("is_depth_map", False):
+            continue
+        if feat["dtype"] not in ("image", "video"):
+            continue
+        name = key.removeprefix("observation.images.")
+        depth = f"{key}_depth" if f"{key}_depth" in features else None
+        k_key = f"observation.camera.{name}.intrinsics"
+        e_key = f"observation.camera.{name}.extrinsics"
+        info = feat.get("info") or {}
+        static_k = info.get("sigma.intrinsics")
+        static_e = info.get("sigma.extrinsics")
+        cam = CameraFeatures(
+            name=name,
+            rgb=key,
+            depth=depth,
+            intrinsics=k_key if k_key in features else None,
+            extrinsics=e_key if e_key in features else None,
+            static_intrinsics=None if static_k is None else np.asarray(static_k, dtype=np.float64),
+            static_extrinsics=None if static_e is None else np.asarray(static_e, dtype=np.float64),
+        )
+        if cam.intrinsics is None and cam.static_intrinsics is None:
+            raise ValueError(
+                f"camera {name!r}: no feature {k_key!r} and no info['sigma.intrinsics'] on {key!r}"
+            )
+        if cam.extrinsics is None and cam.static_extrinsics is None:
+            raise ValueError(
+                f"camera {name!r}: no feature {e_key!r} and no info['sigma.extrinsics'] on {key!r}"
+            )
+        cameras.append(cam)
+    if not cameras:
+        raise ValueError("dataset has no RGB camera feature 'observation.images.<cam>'")
+    return cameras
+
+
+def detect_dataset_kind(root: Path, features: dict[str, dict]) -> DatasetKind:
+    """``kind`` from ``meta/sigma.json`` if present, else from the action dimension (7 dense, 9 keyframe)."""
+    sidecar = Path(root) / SIDECAR
+    if sidecar.exists():
+        kind = json.loads(sidecar.read_text()).get("kind")
+        if kind not in ("dense", "keyframe"):
+            raise ValueError(f"{sidecar}: field 'kind' is {kind!r}, expected 'dense' or 'keyframe'")
+        return kind
+    if ACTION_KEY not in features:
+        raise ValueError(f"{root}: no {SIDECAR} and no 'action' feature to infer the dataset kind from")
+    dim = int(features[ACTION_KEY]["shape"][-1])
+    if dim == DENSE_ACTION_DIM:
+        return "dense"
+    if dim == KEYFRAME_ACTION_DIM:
+        return "keyframe"
+    raise ValueError(
+        f"{root}: no {SIDECAR} and 'action' has {dim} dims; expected {DENSE_ACTION_DIM} (dense) "
+        f"or {KEYFRAME_ACTION_DIM} (keyframe)"
+    )
+
+
+def _names(features: dict[str, dict], key: str) -> list[str]:
+    feat = features[key]
+    dim = int(feat["shape"][-1])
+    names = feat.get("names")
+    if isinstance(names, list) and len(names) == dim:
+        return [str(n) for n in names]
+    return [f"{key}_{i}" for i in range(dim)]
+
+
+def load_episode_tracks(ds: LeRobotDataset, kind: DatasetKind) -> EpisodeTracks:
+    """Read the numeric columns of the (single-episode) dataset without decoding any image."""
+    for key in (STATE_KEY, ACTION_KEY):
+        if key not in ds.features:
+            raise ValueError(f"{ds.root}: missing feature {key!r} (required by the sigma data contract)")
+    cols = ["frame_index", "timestamp", STATE_KEY, ACTION_KEY]
+    if kind == "dense":
+        for key in (IS_KEYFRAME_KEY, NEXT_KEYFRAME_KEY):
+            if key not in ds.features:
+                raise ValueError(f"{ds.root}: dense dataset lacks the keyframe column {key!r}")
+        cols += [IS_KEYFRAME_KEY, NEXT_KEYFRAME_KEY]
+    table = ds.hf_dataset.with_format(None).select_columns([*cols, "task_index"])[:]
+    order = np.argsort(np.asarray(table["frame_index"]))
+    tasks_df = ds.meta.tasks
+    index_to_task = {int(i): str(t) for t, i in zip(tasks_df.index, tasks_df["task_index"], strict=True)}
+
+    def col(name: str, dtype: type) -> np.ndarray:
+        return np.asarray(table[name], dtype=dtype)[order]
+
+    tracks = EpisodeTracks(
+        frame_index=col("frame_index", np.int64),
+        timestamps=col("timestamp", np.float64),
+        state=col(STATE_KEY, np.float32),
+        action=col(ACTION_KEY, np.float32),
+        state_names=_names(ds.features, STATE_KEY),
+        action_names=_names(ds.features, ACTION_KEY),
+        tasks=[index_to_task[int(table["task_index"][i])] for i in order],
+    )
+    if not np.array_equal(tracks.frame_index, np.arange(len(order))):
+        raise ValueError(f"{ds.root}: frame_index of the episode is not 0..{len(order) - 1}")
+    if kind == "dense":
+        tracks.is_keyframe = col(IS_KEYFRAME_KEY, bool).reshape(-1)
+        tracks.next_keyframe = col(NEXT_KEYFRAME_KEY, np.int64).reshape(-1)
+        n = len(tracks.frame_index)
+        bad = (tracks.next_keyframe < 0) | (tracks.next_keyframe >= n)
+        if bad.any():
+            raise ValueError(
+                f"{ds.root}: {NEXT_KEYFRAME_KEY} out of the episode range [0, {n}) at frames "
+                f"{np.flatnonzero(bad)[:5].tolist()}"
+            )
+    if tracks.state.shape[1] < 8:
+        raise ValueError(
+            f"{ds.root}: {STATE_KEY} has {tracks.state.shape[1]} dims, need >= 8 (pose + gripper)"
+        )
+    return tracks
+
+
+# ----------------------------------------------------------------------------------------------- keyframes
+
+
+def decision_points(tracks: EpisodeTracks, kind: DatasetKind) -> np.ndarray:
+    """Episode-relative frames on the ``keyframe`` timeline: the start frame, then every keyframe in order."""
+    n = len(tracks.frame_index)
+    if kind == "keyframe":
+        return np.arange(n)
+    assert tracks.is_keyframe is not None
+    return np.union1d([0], np.flatnonzero(tracks.is_keyframe))
+
+
+def goal_poses(tracks: EpisodeTracks, kind: DatasetKind) -> np.ndarray:
+    """Per-frame goal keyframe pose (N, 8): xyz, quaternion xyzw, gripper_open.
+
+    Dense: the state at ``sigma.next_keyframe_index``. Keyframe: the frame's own 9-D action, which is the
+    pose of frame i+1 (the last frame repeats its own pose).
+    """
+    if kind == "keyframe":
+        return tracks.action[:, :8].copy()
+    assert tracks.next_keyframe is not None
+    return tracks.state[tracks.next_keyframe, :8].copy()
+
+
+def keyframe_poses(tracks: EpisodeTracks, kind: DatasetKind) -> tuple[np.ndarray, np.ndarray]:
+    """Keyframes (decision points after the start): (episode-relative frames (K,), poses (K, 8))."""
+    frames = decision_points(tracks, kind)[1:]
+    return frames, tracks.state[frames, :8].copy()
+
+
+# ---------------------------------------------------------------------------------------------- geometry
+
+
+def backproject_depth(
+    depth_m: np.ndarray, K: np.ndarray, cam_to_world: np.ndarray, max_depth_m: float
+) -> tuple[np.ndarray, np.ndarray]:
+    """World points of every valid pixel of a z-depth map.
+
+    Args:
+        depth_m: (H, W) z-depth along the optical axis, metres. Valid where 0 < depth < ``max_depth_m``.
+        K: (3, 3) intrinsics, pixel centres at +0.5 (pixel (row v, col u) sits at (u + 0.5, v + 0.5)).
+        cam_to_world: (4, 4) camera-to-world, OpenCV axes (x right, y down, z forward).
+        max_depth_m: far cut-off; removes background and far-plane pixels.
+
+    Returns:
+        (xyz (N, 3) float32 world points, flat pixel indices (N,) into the (H, W) image, row-major).
+    """
+    h, w = depth_m.shape
+    v, u = np.mgrid[0:h, 0:w]
+    z = depth_m.astype(np.float64)
+    valid = np.isfinite(z) & (z > 0) & (z < max_depth_m)
+    flat = np.flatnonzero(valid)
+    zs = z.reshape(-1)[flat]
+    pix = np.stack([u.reshape(-1)[flat] + 0.5, v.reshape(-1)[flat] + 0.5, np.ones_like(zs)], axis=0)
+    cam = (np.linalg.inv(K.astype(np.float64)) @ pix) * zs  # (3, N) camera frame
+    world = cam_to_world[:3, :3].astype(np.float64) @ cam + cam_to_world[:3, 3:4].astype(np.float64)
+    return world.T.astype(np.float32), flat
+
+
+def subsample_evenly(n: int, budget: int) -> np.ndarray:
+    """Indices of at most ``budget`` of ``n`` items, evenly spread (deterministic: no flicker across frames)."""
+    if n <= budget:
+        return np.arange(n)
+    return np.linspace(0, n - 1, budget).round().astype(np.int64)
+
+
+def _to_hwc_uint8(img: torch.Tensor) -> np.ndarray:
+    """LeRobot (3, H, W) float in [0, 1] (or uint8) -> (H, W, 3) uint8 (numpy: no torch thread start-up)."""
+    arr = img.detach().cpu().numpy().transpose(1, 2, 0)
+    if arr.dtype == np.uint8:
+        return np.ascontiguousarray(arr)
+    return (np.clip(arr, 0.0, 1.0) * 255.0 + 0.5).astype(np.uint8)
+
+
+# ----------------------------------------------------------------------------------------------- logging
+
+
+@dataclass
+class EpisodeLogOptions:
+    """Knobs of ``log_episode`` (the CLI exposes them)."""
+
+    point_budget: int = 10_000  # fused cloud points per frame, all cameras together
+    max_depth_m: float = 3.0  # depth beyond this (background, far plane) is left out of the fused cloud
+    jpeg_quality: int = 85  # RGB compression; 0 logs raw images
+    log_depth_images: bool = True  # metric DepthImage per camera (back-projects in 3D; raw float32)
+    # 16-bit millimetre PNG instead of raw float32 (lossless to 1 mm, several times smaller; Rerun 0.33
+    # marks EncodedDepthImage unstable)
+    compress_depth: bool = False
+    point_radius_m: float = 0.004
+
+
+def _quat(q_xyzw: np.ndarray) -> rr.Quaternion:
+    return rr.Quaternion(xyzw=np.asarray(q_xyzw, dtype=np.float32))
+
+
+def _gripper_word(gripper_open: float) -> str:
+    return "open" if gripper_open >= 0.5 else "closed"
+
+
+def _gripper_color(gripper_open: float) -> tuple[int, int, int]:
+    return OPEN_COLOR if gripper_open >= 0.5 else CLOSED_COLOR
+
+
+def log_static_episode_context(
+    rec: rr.RecordingStream, tracks: EpisodeTracks, kind: DatasetKind, episode_index: int
+) -> int:
+    """Timeless entities: world axes, trajectory, keyframe axes, instruction and the time series.
+
+    Returns the number of keyframes logged.
+    """
+    rec.log("world", rr.ViewCoordinates.RIGHT_HAND_Z_UP, static=True)
+    rec.log(
+        "world/eef_trajectory",
+        rr.LineStrips3D([tracks.state[:, :3]], colors=[(90, 160, 255)], radii=0.002),
+        static=True,
+    )
+    kf_frames, kf_poses = keyframe_poses(tracks, kind)
+    for k, (frame, pose) in enumerate(zip(kf_frames, kf_poses, strict=True), start=1):
+        path = f"world/keyframes/kf_{k:02d}"
+        rec.log(
+            path,
+            rr.Transform3D(translation=pose[:3], quaternion=_quat(pose[3:7])),
+            rr.TransformAxes3D(AXIS_LENGTH_M),
+            static=True,
+        )
+        rec.log(
+            f"{path}/label",
+            rr.Points3D(
+                [[0.0, 0.0, 0.0]],
+                radii=0.008,
+                colors=[_gripper_color(pose[7])],
+                labels=[f"kf {k} (frame {frame}): {_gripper_word(pose[7])}"],
+            ),
+            static=True,
+        )
+
+    instructions = list(dict.fromkeys(tracks.tasks))
+    kf_list = ", ".join(str(int(f)) for f in kf_frames)
+    doc = "\n".join(
+        [
+            "# Instruction",
+            *[f"> {t}" for t in instructions],
+            "",
+            f"- dataset kind: **{kind}**",
+            f"- episode: {episode_index}, frames: {len(tracks.frame_index)}",
+            f"- keyframes ({len(kf_frames)}) at frames: {kf_list}",
+            "- keyframe axes: red x, green y, blue z; label dot green = gripper open, red = closed",
+        ]
+    )
+    rec.log("instruction", rr.TextDocument(doc, media_type=rr.MediaType.MARKDOWN), static=True)
+
+    indexes = [
+        rr.TimeColumn("frame_index", sequence=tracks.frame_index),
+        rr.TimeColumn("time", duration=tracks.timestamps - tracks.timestamps[0]),
+    ]
+    for group, values, names in (
+        ("state", tracks.state, tracks.state_names),
+        ("action", tracks.action, tracks.action_names),
+    ):
+        for d, name in enumerate(names):
+            path = f"timeseries/{group}/{rr.escape_entity_path_part(name)}"
+            rec.send_columns(path, indexes=indexes, columns=rr.Scalars.columns(scalars=values[:, d]))
+    goal = goal_poses(tracks, kind)
+    dist = np.linalg.norm(goal[:, :3] - tracks.state[:, :3], axis=1)
+    rec.send_columns("timeseries/goal_distance", indexes=indexes, columns=rr.Scalars.columns(scalars=dist))
+    rec.log("timeseries/goal_distance", rr.SeriesLines(names=["eef to goal (m)"]), static=True)
+    return len(kf_frames)
+
+
+def _depth_archetype(depth_m: np.ndarray, compress: bool) -> rr.DepthImage | rr.EncodedDepthImage:
+    """Metric depth for Rerun: float32 metres (meter=1), or uint16 millimetres PNG (meter=1000)."""
+    turbo = rr.components.Colormap.Turbo
+    if not compress:
+        return rr.DepthImage(depth_m, meter=1.0, colormap=turbo)
+    mm = np.clip(np.nan_to_num(depth_m, nan=0.0, posinf=0.0) * 1000.0, 0, np.iinfo(np.uint16).max)
+    return rr.DepthImage(mm.round().astype(np.uint16), meter=1000.0, colormap=turbo).compress()
+
+
+def _camera_matrices(cam: CameraFeatures, item: dict) -> tuple[np.ndarray, np.ndarray]:
+    K = item[cam.intrinsics].numpy() if cam.intrinsics else cam.static_intrinsics
+    E = item[cam.extrinsics].numpy() if cam.extrinsics else cam.static_extrinsics
+    assert K is not None and E is not None  # guaranteed by discover_cameras
+    return np.asarray(K, dtype=np.float64), np.asarray(E, dtype=np.float64)
+
+
+def log_frame(
+    rec: rr.RecordingStream,
+    item: dict,
+    cameras: list[CameraFeatures],
+    goal: np.ndarray,
+    options: EpisodeLogOptions,
+) -> int:
+    """Log one frame's cameras, fused cloud, end-effector, goal and goal link. Returns the cloud size."""
+    cloud_xyz, cloud_rgb = [], []
+    for cam in cameras:
+        K, E = _camera_matrices(cam, item)
+        rgb = _to_hwc_uint8(item[cam.rgb])
+        h, w = rgb.shape[:2]
+        base = f"world/cameras/{cam.name}"
+        rec.log(base, rr.Transform3D(translation=E[:3, 3], mat3x3=E[:3, :3]))
+        rec.log(
+            base,
+            rr.Pinhole(
+                image_from_camera=K,
+                resolution=[w, h],
+                camera_xyz=rr.ViewCoordinates.RDF,
+                image_plane_distance=0.1,
+            ),
+        )
+        image = rr.Image(rgb)
+        rec.log(
+            f"{base}/rgb",
+            image.compress(jpeg_quality=options.jpeg_quality) if options.jpeg_quality else image,
+        )
+        if cam.depth is None:
+            continue
+        depth = item[cam.depth].detach().cpu().numpy().reshape(h, w).astype(np.float32)
+        if options.log_depth_images:
+            rec.log(f"{base}/depth", _depth_archetype(depth, options.compress_depth))
+        xyz, flat = backproject_depth(depth, K, E, options.max_depth_m)
+        cloud_xyz.append(xyz)
+        cloud_rgb.append(rgb.reshape(-1, 3)[flat])
+
+    n_points = 0
+    if cloud_xyz:
+        xyz, rgb = np.concatenate(cloud_xyz), np.concatenate(cloud_rgb)
+        keep = subsample_evenly(len(xyz), options.point_budget)
+        n_points = len(keep)
+        rec.log("world/point_cloud", rr.Points3D(xyz[keep], colors=rgb[keep], radii=options.point_radius_m))
+
+    state = item["observation.state"].numpy()
+    rec.log(
+        "world/eef",
+        rr.Transform3D(translation=state[:3], quaternion=_quat(state[3:7])),
+        rr.TransformAxes3D(AXIS_LENGTH_M * 0.6),
+    )
+    rec.log(
+        "world/goal",
+        rr.Transform3D(translation=goal[:3], quaternion=_quat(goal[3:7])),
+        rr.TransformAxes3D(AXIS_LENGTH_M * 1.4),
+    )
+    rec.log(
+        "world/goal_link",
+        rr.Arrows3D(
+            origins=[state[:3]],
+            vectors=[goal[:3] - state[:3]],
+            colors=[_gripper_color(goal[7])],
+            radii=0.003,
+            labels=[f"goal: gripper {_gripper_word(goal[7])}"],
+        ),
+    )
+    return n_points
+
+
+def log_episode(
+    rec: rr.RecordingStream,
+    ds: LeRobotDataset,
+    kind: DatasetKind,
+    episode_index: int,
+    options: EpisodeLogOptions | None = None,
+    progress: bool = True,
+) -> EpisodeLogSummary:
+    """Log one episode (``ds`` must be loaded with ``episodes=[episode_index]`` and ``depth_output_unit="m"``)."""
+    options = options or EpisodeLogOptions()
+    if ds.depth_output_unit != "m":
+        raise ValueError(
+            f"{ds.root}: load the dataset with depth_output_unit='m' (got {ds.depth_output_unit!r})"
+        )
+    cameras = discover_cameras(ds.features)
+    tracks = load_episode_tracks(ds, kind)
+    n = len(tracks.frame_index)
+    if n == 0:
+        raise ValueError(f"{ds.root}: episode {episode_index} has no frames")
+    num_keyframes = log_static_episode_context(rec, tracks, kind, episode_index)
+    goals = goal_poses(tracks, kind)
+    ordinal = {int(f): k for k, f in enumerate(decision_points(tracks, kind))}
+    t0 = tracks.timestamps[0]
+
+    max_points = 0
+    for row in tqdm(range(n), desc=f"episode {episode_index}", disable=not progress):
+        item = ds[row]
+        i = int(item["frame_index"])  # episode-relative; load_episode_tracks checked it spans 0..n-1
+        rec.set_time("frame_index", sequence=i)
+        rec.set_time("time", duration=float(item["timestamp"]) - t0)
+        if i in ordinal:
+            rec.set_time("keyframe", sequence=ordinal[i])
+        else:
+            rec.disable_timeline("keyframe")
+        max_points = max(max_points, log_frame(rec, item, cameras, goals[i], options))
+    rec.reset_time()
+    return EpisodeLogSummary(
+        kind=kind,
+        episode_index=episode_index,
+        num_frames=n,
+        cameras=tuple(c.name for c in cameras),
+        num_keyframes=num_keyframes,
+        max_points_per_frame=max_points,
+    )
+
+
+def load_episode_dataset(root: Path, episode_index: int, repo_id: str | None = None) -> LeRobotDataset:
+    """Stock ``LeRobotDataset`` for one local episode, depth in metres (no network)."""
+    root = Path(root)
+    if not (root / "meta" / "info.json").exists():
+        raise FileNotFoundError(f"{root}: not a LeRobot dataset (no meta/info.json)")
+    total = LeRobotDatasetMetadata(repo_id or f"local/{root.name}", root=root).total_episodes
+    if not 0 <= episode_index < total:
+        raise ValueError(f"{root}: episode index {episode_index} out of range (dataset has {total} episodes)")
+    ds = LeRobotDataset(
+        repo_id or f"local/{root.name}", root=root, episodes=[episode_index], depth_output_unit="m"
+    )
+    if ds.num_frames == 0:
+        raise ValueError(f"{root}: episode {episode_index} not found or empty")
+    return ds
