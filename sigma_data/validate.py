@@ -521,7 +521,7 @@ def validate_dataset(cfg: ValidateConfig) -> ValidationReport:
     root = Path(cfg.root)
     if not (root / "meta" / "info.json").exists():
         raise FileNotFoundError(f"{root}: not a LeRobot dataset (no meta/info.json)")
-    ds = LeRobotDataset(cfg.repo_id, root=root, depth_output_unit="m")
+    ds = LeRobotDataset(cfg.repo_id, root=root, depth_output_unit="m", video_backend="pyav")
     features = ds.meta.features
     cameras = _camera_names(features)
     kind = _dataset_kind(root, features)

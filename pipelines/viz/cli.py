@@ -149,6 +149,7 @@ def run_policy_view(cfg: PolicyViewConfig) -> str:
         episodes=[cfg.episode_index],
         delta_timestamps=resolve_delta_timestamps(policy.config, meta),
         depth_output_unit="m",
+        video_backend="pyav",  # torchcodec cannot load without system FFmpeg; skip its noisy probe
     )
     if not 0 <= cfg.frame_index < len(ds):
         raise ValueError(

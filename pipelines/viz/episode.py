@@ -527,7 +527,11 @@ def load_episode_dataset(root: Path, episode_index: int, repo_id: str | None = N
     if not 0 <= episode_index < total:
         raise ValueError(f"{root}: episode index {episode_index} out of range (dataset has {total} episodes)")
     ds = LeRobotDataset(
-        repo_id or f"local/{root.name}", root=root, episodes=[episode_index], depth_output_unit="m"
+        repo_id or f"local/{root.name}",
+        root=root,
+        episodes=[episode_index],
+        depth_output_unit="m",
+        video_backend="pyav",  # torchcodec cannot load without system FFmpeg; skip its noisy probe
     )
     if ds.num_frames == 0:
         raise ValueError(f"{root}: episode {episode_index} not found or empty")
