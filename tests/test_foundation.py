@@ -10,6 +10,10 @@ import textwrap
 import numpy as np
 import pytest
 
+# Imported before any env exists: importing it (it pulls in robosuite.wrappers) after an offscreen context
+# was created leaves that context rendering garbage depth under pytest (seen with robosuite 1.5.1 + EGL).
+from robosuite.utils import camera_utils
+
 
 def run_python(code: str) -> subprocess.CompletedProcess:
     return subprocess.run(
@@ -81,8 +85,6 @@ def lift_env():
 def test_robosuite_lift_renders_upright_rgb_and_metric_depth(lift_env):
     """Render agentview offscreen, flip to the top-left origin, convert the z-buffer to metres, and check both
     against the true cube position projected through robosuite's own calibration."""
-    from robosuite.utils import camera_utils
-
     env, cam, h, w = lift_env, "agentview", 96, 96
     env.sim.forward()
     rgb, zbuf = env.sim.render(camera_name=cam, height=h, width=w, depth=True)

@@ -1,0 +1,162 @@
+"""Scripted-expert report: success per task variation over N seeds, and the keyframe-replay upper bound.
+
+For every (task, variation) and seed: reset (``reset_env``), run the expert without cameras, check the task's
+success; then reset to the same seed and replay **only the expert's keyframes** with ``KeyframeExecutor``
+(arm then gripper per keyframe), which is what a perfect keyframe policy would achieve with this executor.
+Failed episodes are counted with their reasons, never hidden. Prints a Markdown table.
+
+    python benchmarks/bench_experts.py                          # all 10 variations, 50 seeds each
+    python benchmarks/bench_experts.py --tasks lift,stack --seeds 5 --workers 2
+"""
+
+from __future__ import annotations
+
+import os
+import time
+from collections import Counter
+from concurrent.futures import ProcessPoolExecutor
+from dataclasses import dataclass, field
+
+os.environ.setdefault("MUJOCO_GL", "egl")
+import draccus
+import numpy as np
+from tqdm import tqdm
+
+import sigma_data  # noqa: F401  (headless GL before robosuite)
+from sigma_data.control import EnvDriver, KeyframeExecutor
+from sigma_data.experts.base import ExpertFailure
+from sigma_data.tasks import TASKS, get_task, get_variation, make_env, reset_env
+
+
+@dataclass
+class BenchConfig:
+    # Comma-separated task names (default: all registered tasks).
+    tasks: str = ""
+    # Comma-separated variation names to keep (default: all variations of the chosen tasks).
+    variations: str = ""
+    # Seeds per variation.
+    seeds: int = 50
+    # First seed.
+    start_seed: int = 0
+    # Worker processes (one (task, variation) job each at a time); the machine is shared: keep <= 2.
+    workers: int = 1
+    # Also replay the expert keyframes of successful episodes with KeyframeExecutor.
+    replay: bool = True
+
+
+@dataclass
+class VariationReport:
+    task: str
+    variation: str
+    seeds: int
+    successes: int = 0
+    steps: list[int] = field(default_factory=list)  # of successful episodes
+    keyframes: list[int] = field(default_factory=list)
+    failures: Counter = field(default_factory=Counter)  # reason -> count
+    failed_seeds: list[int] = field(default_factory=list)
+    replay_successes: int = 0
+    replay_attempts: int = 0
+    replay_steps: list[int] = field(default_factory=list)
+    replay_failed_seeds: list[int] = field(default_factory=list)
+    seconds: float = 0.0
+
+
+def _short(reason: str) -> str:
+    return reason.split(":")[0] if ":" in reason else reason
+
+
+def run_variation(task_name: str, variation_name: str, seeds: list[int], replay: bool) -> VariationReport:
+    task = get_task(task_name)
+    variation = get_variation(task, variation_name)
+    report = VariationReport(task_name, variation_name, len(seeds))
+    env = make_env(task)
+    start = time.perf_counter()
+    try:
+        for seed in seeds:
+            reset_env(env, task, variation, seed)
+            driver = EnvDriver(env)
+            try:
+                task.expert(driver, variation, np.random.default_rng(seed))
+                ok = task.success(env, variation)
+                reason = "" if ok else "success check false at the end"
+            except ExpertFailure as exc:
+                ok, reason = False, f"ExpertFailure: {_short(str(exc))}"
+            if driver.num_steps > task.max_steps:
+                ok, reason = False, f"over budget ({driver.num_steps} > {task.max_steps} steps)"
+            if not ok:
+                report.failures[reason] += 1
+                report.failed_seeds.append(seed)
+                continue
+            report.successes += 1
+            report.steps.append(driver.num_steps)
+            report.keyframes.append(len(driver.keyframes))
+            if replay:
+                reset_env(env, task, variation, seed)
+                replayer = EnvDriver(env)
+                KeyframeExecutor(replayer).execute_all(driver.keyframes)
+                report.replay_attempts += 1
+                if task.success(env, variation):
+                    report.replay_successes += 1
+                    report.replay_steps.append(replayer.num_steps)
+                else:
+                    report.replay_failed_seeds.append(seed)
+    finally:
+        env.close()
+    report.seconds = time.perf_counter() - start
+    return report
+
+
+def _mean(values: list[int]) -> str:
+    return f"{np.mean(values):.1f}" if values else "-"
+
+
+def markdown_table(reports: list[VariationReport]) -> str:
+    lines = [
+        "| task | variation | expert success | steps/ep | keyframes/ep | keyframe replay | replay steps/ep | "
+        "failures (reason: count) | failed seeds |",
+        "|---|---|---|---|---|---|---|---|---|",
+    ]
+    for r in reports:
+        rate = f"{r.successes}/{r.seeds} ({100 * r.successes / max(r.seeds, 1):.0f}%)"
+        rep = f"{r.replay_successes}/{r.replay_attempts}" if r.replay_attempts else "-"
+        reasons = "; ".join(f"{k}: {v}" for k, v in r.failures.most_common()) or "-"
+        failed = ", ".join(map(str, r.failed_seeds + [f"r{s}" for s in r.replay_failed_seeds])) or "-"
+        lines.append(
+            f"| {r.task} | {r.variation} | {rate} | {_mean(r.steps)} | {_mean(r.keyframes)} | {rep} | "
+            f"{_mean(r.replay_steps)} | {reasons} | {failed} |"
+        )
+    return "\n".join(lines)
+
+
+def main(cfg: BenchConfig) -> list[VariationReport]:
+    task_names = [t for t in cfg.tasks.split(",") if t] or list(TASKS)
+    keep = {v for v in cfg.variations.split(",") if v}
+    jobs = []
+    for name in task_names:
+        task = get_task(name)
+        for variation in task.variations:
+            if not keep or variation.name in keep:
+                jobs.append((name, variation.name))
+    if not jobs:
+        raise ValueError(f"no (task, variation) matches tasks={cfg.tasks!r} variations={cfg.variations!r}")
+    seeds = list(range(cfg.start_seed, cfg.start_seed + cfg.seeds))
+
+    start = time.perf_counter()
+    reports: list[VariationReport] = []
+    with ProcessPoolExecutor(max_workers=max(1, min(cfg.workers, 2))) as pool:
+        futures = [pool.submit(run_variation, t, v, seeds, cfg.replay) for t, v in jobs]
+        for fut in tqdm(futures, desc="variations", unit="var"):
+            reports.append(fut.result())
+    print()
+    print(markdown_table(reports))
+    total = sum(r.seeds for r in reports)
+    ok = sum(r.successes for r in reports)
+    print(
+        f"\nexperts: {ok}/{total} episodes succeeded over {len(reports)} variations "
+        f"({cfg.seeds} seeds from {cfg.start_seed}) in {time.perf_counter() - start:.0f} s"
+    )
+    return reports
+
+
+if __name__ == "__main__":
+    main(draccus.parse(config_class=BenchConfig))

@@ -1,0 +1,638 @@
+"""Collect scripted-expert demonstrations into the dense and keyframe LeRobot datasets.
+
+Per episode: reset (``reset_env``, deterministic in the seed), record the expert **without rendering**
+(:class:`~sigma_data.record.EpisodeRecorder` stores the flattened sim state every control step), drop and count
+the episode if the expert gives up or the task's success check fails, else replay the stored states and render
+**only the frames that are written** (every frame for the dense dataset, the decision points for the keyframe
+dataset; a frame both need is rendered once).
+
+Scale and robustness:
+
+* Work is cut into shards of seeds (``shard_size`` seeds of one task variation). Each shard is written by one
+  worker process into ``<output_dir>/shards/<name>/{dense,keyframe}`` and ends with a ``shard.json`` marker;
+  the shards are then merged with LeRobot's ``aggregate_datasets`` into ``<output_dir>/{dense,keyframe}``.
+* Rerunning skips shards whose marker matches the configuration and whose datasets load with the recorded
+  episode counts; anything else (an interrupted shard) is deleted and redone. The merge is redone every run.
+* Same configuration and seeds give identical data: the model (e.g. Lift's random cube size, drawn when the
+  env is built) is built under ``model_seed``, every episode under its own seed.
+* ``executor = "datatrove"`` runs the same shards through DataTrove's ``LocalPipelineExecutor`` (swap in its
+  ``SlurmPipelineExecutor`` for clusters); it needs the optional dependency ``datatrove``.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import hashlib
+import json
+import multiprocessing as mp
+import queue
+import shutil
+import time
+from collections.abc import Callable
+from concurrent.futures import ProcessPoolExecutor
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+from typing import Any, Literal
+
+import numpy as np
+
+from sigma_data.cameras import DEFAULT_CAMERAS, CameraRig, RenderConfig
+from sigma_data.episode import CameraViews, Episode
+from sigma_data.keyframes import compare_keyframes, discover_keyframes
+from sigma_data.writers import SIDECAR, DatasetLayout, DenseWriter, KeyframeWriter, SigmaWriter
+
+MARKER = "shard.json"
+DATASETS = ("dense", "keyframe")
+
+
+@dataclass
+class CollectConfig:
+    """Options of ``sigma-data collect``."""
+
+    # Registry task names, comma-separated, or "all".
+    tasks: str = "lift"
+    # Variation names (of the chosen tasks), comma-separated, or "all".
+    variations: str = "all"
+    # Seeds tried per variation (failed episodes are dropped and counted, not replaced).
+    episodes: int = 10
+    # First seed; variation v uses seeds start_seed .. start_seed + episodes - 1.
+    start_seed: int = 0
+    # Where shards and the merged datasets go.
+    output_dir: Path = Path("outputs/sigma_data")
+    # LeRobot repo_id prefix of the merged datasets (local only): <repo_id>_dense, <repo_id>_keyframe.
+    repo_id: str = "local/sigma"
+    # Cameras, comma-separated.
+    cameras: str = ",".join(DEFAULT_CAMERAS)
+    height: int = 128
+    width: int = 128
+    # Which datasets to write.
+    dense: bool = True
+    keyframe: bool = True
+    # Camera storage: video (dense default) or PNG/TIFF images (keyframe default; exact depth).
+    dense_video: bool = True
+    keyframe_video: bool = False
+    # RVT-style augmentation chains in the keyframe dataset: an extra episode from every N-th frame (0 = off).
+    augment_every: int = 0
+    # Rendering: the fast settings (MSAA/reflections/skybox off) and the depth clip, metres.
+    fast_render: bool = True
+    max_depth: float = 3.0
+    # Worker processes (each writes its own shards) and seeds per shard.
+    workers: int = 1
+    shard_size: int = 10
+    # Seed of the random model parameters drawn when an env is built (e.g. Lift's cube size).
+    model_seed: int = 0
+    # "processes" (a process pool) or "datatrove" (DataTrove's local executor; optional dependency).
+    executor: Literal["processes", "datatrove"] = "processes"
+    # Show progress bars.
+    progress: bool = True
+
+    def camera_list(self) -> tuple[str, ...]:
+        cams = tuple(c.strip() for c in self.cameras.split(",") if c.strip())
+        if not cams:
+            raise ValueError("no cameras given (--cameras)")
+        return cams
+
+    def task_names(self) -> list[str]:
+        from sigma_data.tasks import TASKS
+
+        if self.tasks.strip() == "all":
+            return sorted(TASKS)
+        names = list(dict.fromkeys(t.strip() for t in self.tasks.split(",") if t.strip()))
+        if not names:
+            raise ValueError("no task given (--tasks)")
+        return names
+
+    def render_config(self) -> RenderConfig:
+        return RenderConfig(self.camera_list(), self.height, self.width, self.fast_render, self.max_depth)
+
+    def fingerprint(self) -> str:
+        """Hash of every option that changes the data (not workers, paths or progress)."""
+        keys = [
+            "cameras",
+            "height",
+            "width",
+            "dense",
+            "keyframe",
+            "dense_video",
+            "keyframe_video",
+            "augment_every",
+            "fast_render",
+            "max_depth",
+            "model_seed",
+        ]
+        blob = json.dumps({k: getattr(self, k) for k in keys}, sort_keys=True)
+        return hashlib.sha256(blob.encode()).hexdigest()[:16]
+
+
+@dataclass(frozen=True)
+class ShardSpec:
+    """One unit of work: seeds of one task variation."""
+
+    task: str
+    variation: str
+    seeds: tuple[int, ...]
+
+    @property
+    def name(self) -> str:
+        return f"{self.task}-{self.variation}-{self.seeds[0]:06d}-{self.seeds[-1]:06d}"
+
+
+@dataclass
+class ShardResult:
+    """What a shard produced, with timings in seconds (render = replay + render; write = writers minus render)."""
+
+    name: str
+    kept: int = 0
+    dropped: list[dict[str, Any]] = field(default_factory=list)
+    frames: dict[str, int] = field(default_factory=dict)  # dataset -> frames written
+    episodes: dict[str, int] = field(default_factory=dict)  # dataset -> LeRobot episodes written
+    keyframes: int = 0  # expert keyframes of the kept episodes
+    steps: int = 0  # recorded control steps of the kept episodes
+    rendered_frames: int = 0
+    record_s: float = 0.0
+    render_s: float = 0.0
+    write_s: float = 0.0
+    total_s: float = 0.0
+    heuristic: dict[str, float] = field(default_factory=dict)  # heuristic vs expert keyframes (sums)
+    skipped: bool = False
+    fingerprint: str = ""
+
+
+@dataclass
+class CollectSummary:
+    shards: list[ShardResult]
+    outputs: dict[str, Path]
+    wall_s: float
+
+    @property
+    def kept(self) -> int:
+        return sum(s.kept for s in self.shards)
+
+    @property
+    def dropped(self) -> int:
+        return sum(len(s.dropped) for s in self.shards)
+
+    def frames(self, kind: str) -> int:
+        return sum(s.frames.get(kind, 0) for s in self.shards)
+
+    def line(self) -> str:
+        skipped = sum(s.skipped for s in self.shards)
+        parts = [f"collect: kept {self.kept}, dropped {self.dropped} episodes"]
+        for kind in self.outputs:
+            parts.append(f"{kind} {self.frames(kind)} frames")
+        parts.append(f"{sum(s.keyframes for s in self.shards)} keyframes")
+        parts.append(f"{len(self.shards)} shards ({skipped} reused)")
+        parts.append(f"{self.wall_s:.1f} s")
+        return ", ".join(parts) + " -> " + ", ".join(str(p) for p in self.outputs.values())
+
+
+# --------------------------------------------------------------------------------------------------
+# Planning
+# --------------------------------------------------------------------------------------------------
+
+
+def plan_shards(cfg: CollectConfig) -> list[ShardSpec]:
+    """Shards of the run, in a fixed order (task, variation, seed). Raises ``ValueError`` on bad names."""
+    from sigma_data.tasks import get_task
+
+    if cfg.episodes < 1:
+        raise ValueError(f"episodes must be >= 1, got {cfg.episodes}")
+    if cfg.shard_size < 1 or cfg.workers < 1:
+        raise ValueError(f"shard_size and workers must be >= 1, got {cfg.shard_size}, {cfg.workers}")
+    if not (cfg.dense or cfg.keyframe):
+        raise ValueError("nothing to write: enable --dense and/or --keyframe")
+    names = cfg.task_names()
+    tasks = [get_task(n) for n in names]
+    wanted = (
+        None
+        if cfg.variations.strip() == "all"
+        else {v.strip() for v in cfg.variations.split(",") if v.strip()}
+    )
+    if wanted is not None:
+        known = {v.name for t in tasks for v in t.variations}
+        unknown = sorted(wanted - known)
+        if unknown:
+            raise ValueError(
+                f"unknown variation(s) {unknown} for tasks {names}; known: {', '.join(sorted(known))}"
+            )
+    seeds = list(range(cfg.start_seed, cfg.start_seed + cfg.episodes))
+    shards = []
+    for task in tasks:
+        for var in task.variations:
+            if wanted is not None and var.name not in wanted:
+                continue
+            for i in range(0, len(seeds), cfg.shard_size):
+                shards.append(ShardSpec(task.name, var.name, tuple(seeds[i : i + cfg.shard_size])))
+    return shards
+
+
+def build_env(task: Any, render: RenderConfig, model_seed: int) -> Any:
+    """``make_env`` with the random model parameters drawn under ``model_seed`` (global RNG restored)."""
+    from sigma_data.tasks import make_env
+
+    saved = np.random.get_state()
+    try:
+        np.random.seed(model_seed)
+        return make_env(task, cameras=render.cameras, height=render.height, width=render.width)
+    finally:
+        np.random.set_state(saved)
+
+
+def check_cameras_exist(cfg: CollectConfig, shards: list[ShardSpec]) -> None:
+    """Fail fast, before any worker starts, on a camera no scene of the run has (builds one env per task)."""
+    from sigma_data.tasks import get_task
+
+    for task_name in dict.fromkeys(s.task for s in shards):
+        env = build_env(get_task(task_name), RenderConfig(cameras=()), cfg.model_seed)  # no renderer needed
+        try:
+            known = set(env.sim.model.camera_names)
+        finally:
+            env.close()
+        unknown = [c for c in cfg.camera_list() if c not in known]
+        if unknown:
+            raise ValueError(
+                f"unknown camera(s) {unknown} for task '{task_name}'; known: {', '.join(sorted(known))}"
+            )
+
+
+# --------------------------------------------------------------------------------------------------
+# One shard
+# --------------------------------------------------------------------------------------------------
+
+
+class RenderedFrames:
+    """Renders an episode's frames by state replay on demand; keeps the ones requested again later."""
+
+    def __init__(self, episode: Episode, rig: CameraRig, keep: set[int]):
+        if episode.sim_states is None:
+            raise ValueError(f"{episode.name}: no sim states to render")
+        self.episode, self.rig, self.keep = episode, rig, keep
+        self.cache: dict[int, CameraViews] = {}
+        self.seconds = 0.0
+        self.count = 0
+
+    def __call__(self, t: int) -> CameraViews:
+        if t in self.cache:
+            return self.cache[t]
+        start = time.perf_counter()
+        views = self.rig.render_state(self.episode.sim_states[t])
+        self.seconds += time.perf_counter() - start
+        self.count += 1
+        if t in self.keep:
+            self.cache[t] = views
+        return views
+
+
+def _heuristic_vs_expert(ep: Episode) -> tuple[list[int], dict[str, float]]:
+    gripper = ep.states[:, 7]
+    heuristic = discover_keyframes(ep.joint_velocities, gripper)
+    match = compare_keyframes(ep.keyframe_indices, heuristic, tolerance=3)
+    return heuristic, {
+        "episodes": 1,
+        "expert": match.reference,
+        "heuristic": match.found,
+        "matched": match.matched,
+        "heuristic_near_expert": match.precision * match.found,
+    }
+
+
+def _provenance(cfg: CollectConfig, shards_tasks: list[str]) -> dict[str, Any]:
+    from sigma_data.tasks import get_task
+    from sigma_data.tasks.registry import CONTROL_FREQ, CONTROLLER, ROBOT
+
+    return {
+        "source": "robosuite scripted experts (sigma_data.collect)",
+        "robot": ROBOT,
+        "controller": {
+            "composite": CONTROLLER,
+            "arm": "OSC_POSE",
+            "input": "delta, base frame",
+            "control_freq": CONTROL_FREQ,
+        },
+        "env_kwargs": {t: dict(get_task(t).env_kwargs) for t in shards_tasks},
+        "env_name": {t: get_task(t).env_name for t in shards_tasks},
+        "bounds": {t: list(get_task(t).bounds) for t in shards_tasks},
+        "render": asdict(cfg.render_config()),
+        "model_seed": cfg.model_seed,
+        "fingerprint": cfg.fingerprint(),
+    }
+
+
+def collect_shard(
+    spec: ShardSpec, cfg: CollectConfig, shard_dir: Path, on_episode: Callable[[], None] | None = None
+) -> ShardResult:
+    """Record, filter, render and write one shard into ``shard_dir`` (replaced if present); writes the marker."""
+    from sigma_data.experts.base import ExpertFailure
+    from sigma_data.record import EpisodeRecorder
+    from sigma_data.tasks import get_task, get_variation, reset_env
+
+    start_all = time.perf_counter()
+    if shard_dir.exists():
+        shutil.rmtree(shard_dir)
+    shard_dir.mkdir(parents=True)
+    task = get_task(spec.task)
+    variation = get_variation(task, spec.variation)
+    render = cfg.render_config()
+    result = ShardResult(spec.name, fingerprint=cfg.fingerprint())
+    env = build_env(task, render, cfg.model_seed)
+    try:
+        rig = CameraRig(env, render)
+        layout = DatasetLayout(render.cameras, render.height, render.width)
+        # Static K/E go into the feature info only when one task (one scene) fills the dataset: shards of
+        # different scenes would disagree and LeRobot's merge requires identical features.
+        static = rig.static_calibration() if len(cfg.task_names()) == 1 else None
+        common = {
+            "layout": layout,
+            "provenance": {**_provenance(cfg, [spec.task]), "static_calibration": _static_json(rig)},
+            "static_calibration": static,
+        }
+        with contextlib.ExitStack() as stack:
+            writers: dict[str, SigmaWriter] = {}
+            if cfg.dense:
+                writers["dense"] = stack.enter_context(
+                    DenseWriter(
+                        shard_dir / "dense",
+                        use_videos=cfg.dense_video,
+                        repo_id=f"{cfg.repo_id}_dense",
+                        **common,
+                    )
+                )
+            if cfg.keyframe:
+                writers["keyframe"] = stack.enter_context(
+                    KeyframeWriter(
+                        shard_dir / "keyframe",
+                        use_videos=cfg.keyframe_video,
+                        augment_every=cfg.augment_every,
+                        repo_id=f"{cfg.repo_id}_keyframe",
+                        **common,
+                    )
+                )
+            for seed in spec.seeds:
+                t0 = time.perf_counter()
+                reset_env(env, task, variation, seed)
+                recorder = EpisodeRecorder(env)
+                reason = ""
+                try:
+                    task.expert(recorder, variation, np.random.default_rng(seed))
+                    if not task.success(env, variation):
+                        reason = "success check failed at the end of the expert"
+                except ExpertFailure as exc:
+                    reason = f"expert failure: {exc}"
+                result.record_s += time.perf_counter() - t0
+                if reason or recorder.num_steps == 0:
+                    result.dropped.append(
+                        {"seed": seed, "steps": recorder.num_steps, "reason": reason or "no steps"}
+                    )
+                    if on_episode:
+                        on_episode()
+                    continue
+                ep = recorder.to_episode(
+                    spec.task, spec.variation, variation.instruction, seed, provenance={"expert": spec.task}
+                )
+                heuristic, stats = _heuristic_vs_expert(ep)
+                ep.provenance["heuristic_keyframes"] = heuristic
+                for k, v in stats.items():
+                    result.heuristic[k] = result.heuristic.get(k, 0.0) + v
+
+                needed = [set(w.frame_indices(ep)) for w in writers.values()]
+                shared = set.intersection(*needed) if len(needed) > 1 else set()
+                frames = RenderedFrames(ep, rig, keep=shared)
+                t1 = time.perf_counter()
+                for kind, writer in writers.items():
+                    result.episodes[kind] = result.episodes.get(kind, 0) + writer.add_episode(ep, frames)
+                result.write_s += time.perf_counter() - t1 - frames.seconds
+                result.render_s += frames.seconds
+                result.rendered_frames += frames.count
+                result.kept += 1
+                result.keyframes += len(ep.keyframes)
+                result.steps += len(ep) - 1
+                if on_episode:
+                    on_episode()
+            t2 = time.perf_counter()
+        result.write_s += time.perf_counter() - t2  # finalize (flushes encoders, closes parquet)
+        for kind, writer in writers.items():
+            result.frames[kind] = writer.num_frames
+    finally:
+        env.close()
+    if result.kept == 0:  # an empty LeRobot dataset cannot be read or merged
+        for kind in DATASETS:
+            shutil.rmtree(shard_dir / kind, ignore_errors=True)
+    result.total_s = time.perf_counter() - start_all
+    (shard_dir / MARKER).write_text(json.dumps(asdict(result), indent=1))
+    return result
+
+
+def _static_json(rig: CameraRig) -> dict[str, Any]:
+    return {
+        cam: {"intrinsics": K.tolist(), "extrinsics": E.tolist()}
+        for cam, (K, E) in rig.static_calibration().items()
+    }
+
+
+def finished_shard(shard_dir: Path, cfg: CollectConfig) -> ShardResult | None:
+    """The stored result if ``shard_dir`` is complete and matches ``cfg``; None if it must be (re)done."""
+    from lerobot.datasets.dataset_metadata import LeRobotDatasetMetadata
+
+    marker = shard_dir / MARKER
+    if not marker.exists():
+        return None
+    try:
+        result = ShardResult(**json.loads(marker.read_text()))
+    except (json.JSONDecodeError, TypeError):
+        return None
+    if result.fingerprint != cfg.fingerprint():
+        return None
+    for kind in (k for k, on in (("dense", cfg.dense), ("keyframe", cfg.keyframe)) if on):
+        expected = result.episodes.get(kind, 0)
+        root = shard_dir / kind
+        if expected == 0:
+            continue
+        try:
+            meta = LeRobotDatasetMetadata(f"{cfg.repo_id}_{kind}", root=root)
+        except Exception:
+            return None
+        if meta.total_episodes != expected or not (root / SIDECAR).exists():
+            return None
+    result.skipped = True
+    return result
+
+
+# --------------------------------------------------------------------------------------------------
+# Runs
+# --------------------------------------------------------------------------------------------------
+
+
+def _worker(spec: ShardSpec, cfg: CollectConfig, shard_dir: Path, progress: Any) -> ShardResult:
+    import sigma_data  # noqa: F401  (headless GL before robosuite in a fresh process)
+
+    return collect_shard(spec, cfg, shard_dir, on_episode=(lambda: progress.put(1)) if progress else None)
+
+
+def _run_processes(
+    todo: list[ShardSpec], cfg: CollectConfig, shards_dir: Path, pbar: Any
+) -> list[ShardResult]:
+    if cfg.workers == 1 or len(todo) <= 1:
+        return [collect_shard(s, cfg, shards_dir / s.name, on_episode=lambda: pbar.update(1)) for s in todo]
+    ctx = mp.get_context("spawn")  # fresh processes: no inherited GL contexts or MuJoCo state
+    with ctx.Manager() as manager, ProcessPoolExecutor(max_workers=cfg.workers, mp_context=ctx) as pool:
+        progress = manager.Queue()
+        futures = [pool.submit(_worker, s, cfg, shards_dir / s.name, progress) for s in todo]
+        while not all(f.done() for f in futures):
+            with contextlib.suppress(queue.Empty):
+                progress.get(timeout=0.2)
+                pbar.update(1)
+        while not progress.empty():
+            pbar.update(progress.get())
+        return [f.result() for f in futures]
+
+
+def _run_datatrove(todo: list[ShardSpec], cfg: CollectConfig, shards_dir: Path) -> list[ShardResult]:
+    try:
+        from datatrove.executor import LocalPipelineExecutor
+        from datatrove.pipeline.base import PipelineStep
+    except ImportError as exc:
+        raise ImportError(
+            "executor='datatrove' needs the optional dependency datatrove (pip install 'datatrove>=0.4,<1')"
+        ) from exc
+
+    class CollectShards(PipelineStep):
+        """DataTrove step: task ``rank`` of ``world_size`` collects shards rank, rank + world_size, ..."""
+
+        name = "sigma-data collect"
+        type = "robosuite"
+
+        def __init__(self, shards: list[ShardSpec], config: CollectConfig, root: Path):
+            super().__init__()
+            self.shards, self.config, self.root = shards, config, root
+
+        def run(self, data: Any = None, rank: int = 0, world_size: int = 1) -> Any:
+            import sigma_data  # noqa: F401
+
+            for spec in self.shards[rank::world_size]:
+                collect_shard(spec, self.config, self.root / spec.name)
+            return data
+
+    tasks = len(todo)
+    LocalPipelineExecutor(
+        pipeline=[CollectShards(todo, cfg, shards_dir)],
+        tasks=tasks,
+        workers=cfg.workers,
+        logging_dir=str(shards_dir.parent / "datatrove_logs"),
+        skip_completed=False,  # shard markers decide what is done
+    ).run()
+    results = [finished_shard(shards_dir / s.name, cfg) for s in todo]
+    missing = [s.name for s, r in zip(todo, results, strict=True) if r is None]
+    if missing:
+        raise RuntimeError(f"datatrove run left shards unfinished: {missing}")
+    for r in results:
+        r.skipped = False
+    return results
+
+
+@contextlib.contextmanager
+def _typed_parquet_writes(features: dict[str, dict]):
+    """Work around LeRobot 0.6.1's ``aggregate_datasets`` on datasets without image features: it rebuilds the
+    data parquet with ``pa.Table.from_pandas(df)`` and no schema, which fails on 2-D features such as the
+    (3, 3) intrinsics ("Did not pass numpy.dtype object"). Within this context the same writer is given the
+    datasets' own HF schema (used with ``concatenate_data=False``: its append path re-reads files untyped). Only the module attribute that function looks up is swapped, and restored."""
+    import datasets
+    from lerobot.datasets import aggregate
+    from lerobot.datasets.feature_utils import get_hf_features_from_features
+    from lerobot.datasets.io_utils import write_table_one_row_group_per_episode
+
+    hf_features = get_hf_features_from_features(features)
+    original = aggregate.to_parquet_one_row_group_per_episode
+
+    def typed(df, path):
+        ds = datasets.Dataset.from_dict(df.to_dict(orient="list"), features=hf_features)
+        table = ds.with_format("arrow")[:]
+        write_table_one_row_group_per_episode(table, path)
+
+    aggregate.to_parquet_one_row_group_per_episode = typed
+    try:
+        yield
+    finally:
+        aggregate.to_parquet_one_row_group_per_episode = original
+
+
+def merge_shards(kind: str, shard_roots: list[Path], out: Path, repo_id: str) -> None:
+    """Merge shard datasets of one kind with LeRobot's ``aggregate_datasets`` and merge their sidecars."""
+    from lerobot.datasets.aggregate import aggregate_datasets
+    from lerobot.datasets.dataset_metadata import LeRobotDatasetMetadata
+
+    if out.exists():
+        shutil.rmtree(out)
+    features = LeRobotDatasetMetadata(repo_id, root=shard_roots[0]).features
+    with _typed_parquet_writes(features):
+        aggregate_datasets(
+            repo_ids=[repo_id] * len(shard_roots),
+            aggr_repo_id=repo_id,
+            roots=shard_roots,
+            aggr_root=out,
+            concatenate_data=False,  # one data file per shard: LeRobot's append path re-reads without types
+        )
+    sidecars = [json.loads((r / SIDECAR).read_text()) for r in shard_roots]
+    merged = {k: v for k, v in sidecars[0].items() if k not in ("episodes", "num_episodes", "num_frames")}
+    merged["env_kwargs"], merged["bounds"], merged["env_name"], merged["static_calibration"] = {}, {}, {}, {}
+    episodes = []
+    for root, side in zip(shard_roots, sidecars, strict=True):
+        task = side["episodes"][0]["task"] if side["episodes"] else None
+        for key in ("env_kwargs", "bounds", "env_name"):
+            merged[key].update(side.get(key, {}))
+        if task is not None:
+            merged["static_calibration"][task] = side.get("static_calibration", {})
+        for ep in side["episodes"]:
+            episodes.append({**ep, "episode_index": len(episodes), "shard": root.parent.name})
+    merged["episodes"] = episodes
+    merged["num_episodes"] = len(episodes)
+    merged["num_frames"] = sum(e["length"] for e in episodes)
+    (out / SIDECAR).write_text(json.dumps(merged, indent=1))
+
+
+def collect(cfg: CollectConfig) -> CollectSummary:
+    """Run (or resume) a collection and merge the shards. Returns per-shard results and output roots."""
+    from tqdm import tqdm
+
+    start = time.perf_counter()
+    shards = plan_shards(cfg)
+    check_cameras_exist(cfg, shards)
+    out = Path(cfg.output_dir)
+    shards_dir = out / "shards"
+    shards_dir.mkdir(parents=True, exist_ok=True)
+
+    done: dict[str, ShardResult] = {}
+    for spec in shards:
+        prev = finished_shard(shards_dir / spec.name, cfg)
+        if prev is not None:
+            done[spec.name] = prev
+    todo = [s for s in shards if s.name not in done]
+    total = sum(len(s.seeds) for s in todo)
+    with tqdm(total=total, desc="episodes", unit="ep", disable=not cfg.progress) as pbar:
+        if cfg.executor == "datatrove":
+            results = _run_datatrove(todo, cfg, shards_dir) if todo else []
+            pbar.update(total)
+        elif cfg.executor == "processes":
+            results = _run_processes(todo, cfg, shards_dir, pbar)
+        else:
+            raise ValueError(f"unknown executor '{cfg.executor}' (processes | datatrove)")
+    for r in results:
+        done[r.name] = r
+    ordered = [done[s.name] for s in shards]
+
+    outputs: dict[str, Path] = {}
+    for kind in (k for k, on in (("dense", cfg.dense), ("keyframe", cfg.keyframe)) if on):
+        roots = [shards_dir / r.name / kind for r in ordered if r.episodes.get(kind, 0) > 0]
+        target = out / kind
+        if not roots:
+            shutil.rmtree(target, ignore_errors=True)
+            continue
+        merge_shards(kind, roots, target, f"{cfg.repo_id}_{kind}")
+        outputs[kind] = target
+    summary = CollectSummary(ordered, outputs, time.perf_counter() - start)
+    (out / "collect.json").write_text(
+        json.dumps(
+            {"config": {k: str(v) for k, v in asdict(cfg).items()}, "shards": [asdict(s) for s in ordered]},
+            indent=1,
+        )
+    )
+    return summary

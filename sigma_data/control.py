@@ -1,0 +1,442 @@
+"""Low-level motion primitives on robosuite's default OSC_POSE (delta) controller.
+
+One set of primitives serves the scripted experts, keyframe replay and closed-loop evaluation:
+
+* :func:`move_to` -- the servo primitive: a velocity-limited reference pose walks toward the target
+  (straight line, geodesic rotation) and each control step sends the delta that drives the grip site to
+  the reference. Stops when converged, stalled or out of budget.
+* :func:`actuate_gripper` -- hold the current pose and command the gripper until the fingers have moved
+  and come to rest.
+* :class:`KeyframeExecutor` -- drives to a 9-D keyframe ``[x, y, z, qx, qy, qz, qw, gripper_open,
+  ignore_collision]`` with RLBench ``MoveArmThenGripper`` semantics (arm first, then the gripper if its
+  state changes), optionally via a safe height when ``ignore_collision == 0``.
+
+Conventions
+-----------
+* Poses are the **grip site** (``env.robots[0].eef_site_id["right"]``) in the world frame, metres;
+  quaternions are xyzw with w >= 0 (robosuite / scipy order, *not* MuJoCo's wxyz).
+* Actions are robosuite's 7-D OSC_POSE delta ``[dx, dy, dz, rx, ry, rz, grip]`` in ``[-1, 1]``, expressed
+  in the robot base frame; one unit is 5 cm / 0.5 rad per control step. ``grip`` is +1 close, -1 open.
+* Everything drives the simulator through a *driver*: any object with ``env`` and ``step(action)``
+  (the collection pipeline's ``EpisodeRecorder``, or :class:`EnvDriver` here).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+from enum import StrEnum
+from typing import Any, Protocol
+
+import numpy as np
+from scipy.spatial.transform import Rotation, Slerp
+
+# OSC_POSE delta scale of the default BASIC composite controller (output_max for input 1).
+POS_SCALE = 0.05  # metres per unit action per control step
+ROT_SCALE = 0.5  # radians per unit action per control step
+
+GRIP_OPEN = -1.0
+GRIP_CLOSE = 1.0
+
+# Top-down grasp orientation: site x (finger closing axis) = world +y, site z (approach) = world -z.
+R_DOWN = np.array([[0.0, 1.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, -1.0]])
+
+
+class Driver(Protocol):
+    """What the primitives need: the env and a way to execute (and possibly record) one control step."""
+
+    env: Any
+
+    def step(self, action: np.ndarray) -> None: ...
+
+
+# --------------------------------------------------------------------------------------------------
+# Pose helpers
+# --------------------------------------------------------------------------------------------------
+
+
+def canonical_quat(quat_xyzw: Sequence[float]) -> np.ndarray:
+    """Normalise an xyzw quaternion and flip it so that w >= 0."""
+    q = np.asarray(quat_xyzw, dtype=np.float64)
+    q = q / np.linalg.norm(q)
+    return -q if q[3] < 0 else q
+
+
+def mat_to_quat(rot: np.ndarray) -> np.ndarray:
+    """3x3 rotation matrix -> canonical xyzw quaternion (w >= 0)."""
+    return canonical_quat(Rotation.from_matrix(rot).as_quat())
+
+
+def quat_to_mat(quat_xyzw: Sequence[float]) -> np.ndarray:
+    """xyzw quaternion -> 3x3 rotation matrix."""
+    return Rotation.from_quat(np.asarray(quat_xyzw, dtype=np.float64)).as_matrix()
+
+
+def yaw_rotation(yaw: float) -> np.ndarray:
+    """Rotation by ``yaw`` radians about world +z (3x3)."""
+    c, s = np.cos(yaw), np.sin(yaw)
+    return np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
+
+
+def top_down_quat(yaw: float) -> np.ndarray:
+    """Grip-site quaternion (xyzw) pointing down with the top-down frame rotated by ``yaw`` about world z.
+
+    At ``yaw = 0`` the fingers close along world y; the closing axis is ``(-sin yaw, cos yaw, 0)``.
+    """
+    return mat_to_quat(yaw_rotation(yaw) @ R_DOWN)
+
+
+def site_yaw(rot: np.ndarray) -> float:
+    """Yaw (rad) of a roughly top-down grip-site rotation, the inverse of :func:`top_down_quat`."""
+    x_axis = rot[:, 0]
+    return float(np.arctan2(-x_axis[0], x_axis[1]))
+
+
+def wrap_angle(angle: float) -> float:
+    """Wrap an angle to [-pi, pi)."""
+    return float((angle + np.pi) % (2 * np.pi) - np.pi)
+
+
+def closest_symmetric_yaw(object_yaw: float, reference_yaw: float, period: float) -> float:
+    """The yaw ``object_yaw + k * period`` closest to ``reference_yaw`` (radians)."""
+    k = np.round((reference_yaw - object_yaw) / period)
+    return float(object_yaw + k * period)
+
+
+def grip_site_pose(env: Any) -> tuple[np.ndarray, np.ndarray]:
+    """World pose of the grip site: position (3,) metres and rotation matrix (3, 3)."""
+    site_id = env.robots[0].eef_site_id["right"]
+    pos = np.array(env.sim.data.site_xpos[site_id], dtype=np.float64)
+    rot = np.array(env.sim.data.site_xmat[site_id], dtype=np.float64).reshape(3, 3)
+    return pos, rot
+
+
+def body_pose(env: Any, body_name: str) -> tuple[np.ndarray, np.ndarray]:
+    """World pose of a MuJoCo body by name: position (3,) and rotation matrix (3, 3)."""
+    body_id = env.sim.model.body_name2id(body_name)
+    pos = np.array(env.sim.data.body_xpos[body_id], dtype=np.float64)
+    rot = np.array(env.sim.data.body_xmat[body_id], dtype=np.float64).reshape(3, 3)
+    return pos, rot
+
+
+def _base_rotation(env: Any) -> np.ndarray:
+    """Rotation of the robot base (the OSC input frame) in the world."""
+    return body_pose(env, env.robots[0].robot_model.root_body)[1]
+
+
+def arm_joint_speed(env: Any) -> float:
+    """Largest absolute arm joint velocity (rad/s)."""
+    return float(np.max(np.abs(env.sim.data.qvel[env.robots[0]._ref_joint_vel_indexes])))
+
+
+def gripper_width(env: Any) -> float:
+    """Finger opening in metres (``q1 - q2``; Panda: 0.078 fully open, ~0.0 closed empty)."""
+    q = env.sim.data.qpos[env.robots[0]._ref_gripper_joint_pos_indexes["right"]]
+    return float(q[0] - q[1])
+
+
+def rotation_error(rot_a: np.ndarray, rot_b: np.ndarray) -> float:
+    """Geodesic angle (rad) between two rotation matrices."""
+    return float(np.linalg.norm(Rotation.from_matrix(rot_a @ rot_b.T).as_rotvec()))
+
+
+def servo_action(env: Any, ref_pos: np.ndarray, ref_rot: np.ndarray, grip: float) -> np.ndarray:
+    """One OSC_POSE delta action (7,) driving the grip site toward the reference pose.
+
+    Errors are computed in the world frame and rotated into the robot base frame, then scaled to the
+    controller's unit action and clipped to [-1, 1].
+    """
+    pos, rot = grip_site_pose(env)
+    base_rot_t = _base_rotation(env).T
+    dpos = base_rot_t @ (ref_pos - pos) / POS_SCALE
+    drot = base_rot_t @ Rotation.from_matrix(ref_rot @ rot.T).as_rotvec() / ROT_SCALE
+    action = np.zeros(7)
+    action[:3] = np.clip(dpos, -1.0, 1.0)
+    action[3:6] = np.clip(drot, -1.0, 1.0)
+    action[6] = grip
+    return action
+
+
+# --------------------------------------------------------------------------------------------------
+# Primitives
+# --------------------------------------------------------------------------------------------------
+
+
+class MoveStatus(StrEnum):
+    CONVERGED = "converged"
+    STALLED = "stalled"
+    BUDGET = "budget"
+
+
+@dataclass(frozen=True)
+class MoveResult:
+    """Outcome of :func:`move_to`: why it stopped, control steps used and the final pose errors."""
+
+    status: MoveStatus
+    steps: int
+    pos_error: float  # metres
+    rot_error: float  # radians
+
+
+@dataclass(frozen=True)
+class ServoConfig:
+    """Servo primitive parameters (robosuite_notes §3.2). Units: metres, radians, control steps."""
+
+    max_lin_step: float = 0.015  # reference speed limit, m per control step
+    max_ang_step: float = 0.15  # reference speed limit, rad per control step
+    pos_tol: float = 0.004
+    rot_tol: float = 0.04
+    joint_speed_tol: float = 0.05  # rad/s; "settled" when every arm joint is slower
+    stall_steps: int = 6  # reference arrived and the site moved < stall_motion for this many steps
+    stall_motion: float = 0.0005  # m per control step
+    stall_rotation: float = 0.003  # rad per control step
+    max_steps: int = 120
+
+
+def _validate_grip(grip: float) -> float:
+    if grip not in (GRIP_OPEN, GRIP_CLOSE):
+        raise ValueError(f"grip must be {GRIP_OPEN} (open) or {GRIP_CLOSE} (close), got {grip!r}")
+    return float(grip)
+
+
+def move_to(
+    driver: Driver,
+    pos: Sequence[float],
+    quat_xyzw: Sequence[float],
+    grip: float,
+    config: ServoConfig = ServoConfig(),
+    max_steps: int | None = None,
+) -> MoveResult:
+    """Servo the grip site to a world pose while holding the gripper command ``grip`` (+1 close, -1 open).
+
+    A reference pose moves toward the target at <= ``max_lin_step`` / ``max_ang_step`` per control step;
+    each step sends :func:`servo_action` toward the reference. Stops when the pose is within tolerance with
+    the joints settled (``CONVERGED``), when the reference has arrived but the site stopped moving and turning
+    (``STALLED``: contact, joint limits, sag), or after ``max_steps`` steps (``BUDGET``).
+    """
+    grip = _validate_grip(grip)
+    budget = config.max_steps if max_steps is None else max_steps
+    env = driver.env
+    target_pos = np.asarray(pos, dtype=np.float64)
+    target_rot = quat_to_mat(quat_xyzw)
+    ref_pos, ref_rot = grip_site_pose(env)
+
+    # Geodesic interpolation between the start and target orientations, walked at a bounded rate.
+    total_angle = rotation_error(target_rot, ref_rot)
+    slerp = Slerp([0.0, 1.0], Rotation.from_matrix(np.stack([ref_rot, target_rot])))
+    ang_frac = 0.0
+
+    still_steps = 0
+    prev_pos, prev_rot = ref_pos.copy(), ref_rot.copy()
+    steps = 0
+    status = MoveStatus.BUDGET
+    while steps < budget:
+        delta = target_pos - ref_pos
+        dist = float(np.linalg.norm(delta))
+        ref_pos = (
+            target_pos.copy()
+            if dist <= config.max_lin_step
+            else ref_pos + delta * (config.max_lin_step / dist)
+        )
+        if total_angle > 1e-9:
+            ang_frac = min(1.0, ang_frac + config.max_ang_step / total_angle)
+        ref_rot = slerp([ang_frac]).as_matrix()[0] if total_angle > 1e-9 else target_rot
+
+        driver.step(servo_action(env, ref_pos, ref_rot, grip))
+        steps += 1
+
+        cur_pos, cur_rot = grip_site_pose(env)
+        pos_err = float(np.linalg.norm(target_pos - cur_pos))
+        rot_err = rotation_error(target_rot, cur_rot)
+        if (
+            pos_err < config.pos_tol
+            and rot_err < config.rot_tol
+            and arm_joint_speed(env) < config.joint_speed_tol
+        ):
+            status = MoveStatus.CONVERGED
+            break
+        ref_arrived = dist <= config.max_lin_step and ang_frac >= 1.0
+        still = (
+            float(np.linalg.norm(cur_pos - prev_pos)) < config.stall_motion
+            and rotation_error(cur_rot, prev_rot) < config.stall_rotation
+        )
+        prev_pos, prev_rot = cur_pos, cur_rot
+        still_steps = still_steps + 1 if (ref_arrived and still) else 0
+        if still_steps >= config.stall_steps:
+            status = MoveStatus.STALLED
+            break
+
+    cur_pos, cur_rot = grip_site_pose(env)
+    return MoveResult(
+        status=status,
+        steps=steps,
+        pos_error=float(np.linalg.norm(target_pos - cur_pos)),
+        rot_error=rotation_error(target_rot, cur_rot),
+    )
+
+
+@dataclass(frozen=True)
+class GripperConfig:
+    """Gripper primitive parameters. Units: metres of finger opening, control steps."""
+
+    moved_width: float = 0.002  # the fingers count as having moved after this change in opening
+    settled_width_step: float = 0.0005  # "at rest" when the opening changes less than this per step
+    settled_steps: int = 2
+    idle_steps: int = 6  # give up waiting for motion (already open / already clamped) after this
+    max_steps: int = 25
+
+
+def actuate_gripper(driver: Driver, open: bool, config: GripperConfig = GripperConfig()) -> int:
+    """Hold the current grip-site pose and command the gripper open (``True``) or closed (``False``).
+
+    Runs until the fingers have moved and come to rest (the fingers need 1-3 steps to start moving, so
+    "slow" alone would stop too early), or until they stayed still for ``idle_steps`` (nothing to do:
+    already open, or clamped on an object). Returns the number of control steps taken.
+    """
+    env = driver.env
+    grip = GRIP_OPEN if open else GRIP_CLOSE
+    hold_pos, hold_rot = grip_site_pose(env)
+    width0 = prev = gripper_width(env)
+    moved = False
+    rest = 0
+    for steps in range(1, config.max_steps + 1):
+        driver.step(servo_action(env, hold_pos, hold_rot, grip))
+        width = gripper_width(env)
+        moved = moved or abs(width - width0) > config.moved_width
+        rest = rest + 1 if abs(width - prev) < config.settled_width_step else 0
+        prev = width
+        if rest >= config.settled_steps and (moved or steps >= config.idle_steps):
+            return steps
+    return config.max_steps
+
+
+def hold(driver: Driver, steps: int, grip: float) -> None:
+    """Hold the current grip-site pose for ``steps`` control steps with gripper command ``grip``."""
+    grip = _validate_grip(grip)
+    hold_pos, hold_rot = grip_site_pose(driver.env)
+    for _ in range(steps):
+        driver.step(servo_action(driver.env, hold_pos, hold_rot, grip))
+
+
+# --------------------------------------------------------------------------------------------------
+# A driver that executes without recording states (closed-loop eval, benchmarks)
+# --------------------------------------------------------------------------------------------------
+
+
+@dataclass
+class EnvDriver:
+    """Executes actions on a robosuite env and keeps what a keyframe replay needs, but no states.
+
+    Implements the ``EpisodeRecorder`` protocol of ``sigma_data.record`` minus state recording:
+    ``keyframes`` holds, per :meth:`mark_keyframe`, the 9-D keyframe ``[x, y, z, qx, qy, qz, qw,
+    gripper_open, ignore_collision]`` of the grip site after the last step, and ``keyframe_steps`` the
+    0-based index of that step.
+    """
+
+    env: Any
+    actions: list[np.ndarray] = field(default_factory=list)
+    keyframes: list[np.ndarray] = field(default_factory=list)
+    keyframe_steps: list[int] = field(default_factory=list)
+
+    def step(self, action: np.ndarray) -> None:
+        action = np.asarray(action, dtype=np.float64)
+        self.env.step(action)
+        self.actions.append(action)
+
+    def mark_keyframe(self, gripper_open: bool, ignore_collision: bool) -> None:
+        if not self.actions:
+            raise RuntimeError("mark_keyframe() called before any step()")
+        self.env.sim.forward()  # site poses lag qpos by one substep after env.step
+        pos, rot = grip_site_pose(self.env)
+        self.keyframes.append(
+            np.concatenate([pos, mat_to_quat(rot), [float(gripper_open), float(ignore_collision)]])
+        )
+        self.keyframe_steps.append(len(self.actions) - 1)
+
+    @property
+    def num_steps(self) -> int:
+        return len(self.actions)
+
+
+# --------------------------------------------------------------------------------------------------
+# Keyframe executor
+# --------------------------------------------------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class ExecutorConfig:
+    """:class:`KeyframeExecutor` parameters (robosuite_notes §7.1)."""
+
+    servo: ServoConfig = ServoConfig(pos_tol=0.005, rot_tol=0.05)
+    gripper: GripperConfig = GripperConfig()
+    arm_budget: int = 60  # control steps per keyframe for the arm motion (3 s at 20 Hz)
+    use_via_point: bool = False  # when ignore_collision == 0, go via a safe height first
+    via_height: float = 0.05  # metres above the higher of start and target
+    via_min_height_change: float = 0.03  # only use a via point if the height changes by more than this
+
+
+@dataclass(frozen=True)
+class KeyframeResult:
+    """What one :meth:`KeyframeExecutor.execute` call did."""
+
+    arm: MoveResult
+    gripper_steps: int
+    steps: int
+
+
+class KeyframeExecutor:
+    """Drive the robot to 9-D keyframes ``[x, y, z, qx, qy, qz, qw, gripper_open, ignore_collision]``.
+
+    RLBench ``MoveArmThenGripper`` semantics: the arm moves to the pose with the current gripper command
+    held (:func:`move_to`, budget ``arm_budget`` steps), then, if ``gripper_open`` differs from the current
+    gripper state, the gripper actuates (:func:`actuate_gripper`). With ``use_via_point`` and
+    ``ignore_collision == 0``, a height change goes via a point ``via_height`` above the higher end (a crude
+    stand-in for a collision-free planner).
+
+    The executor tracks the gripper state it commanded; it starts open (``reset_env`` opens it fully).
+    """
+
+    def __init__(self, driver: Driver, config: ExecutorConfig = ExecutorConfig(), gripper_open: bool = True):
+        self.driver = driver
+        self.config = config
+        self.gripper_open = gripper_open
+
+    def execute(self, keyframe: Sequence[float]) -> KeyframeResult:
+        kf = np.asarray(keyframe, dtype=np.float64)
+        if kf.shape != (9,) or not np.all(np.isfinite(kf)):
+            raise ValueError(f"keyframe must be 9 finite values [xyz, qxyzw, open, ignore_coll], got {kf!r}")
+        pos, quat = kf[:3], canonical_quat(kf[3:7])
+        want_open = bool(kf[7] > 0.5)
+        ignore_collision = bool(kf[8] > 0.5)
+        grip = GRIP_OPEN if self.gripper_open else GRIP_CLOSE
+
+        steps = 0
+        cfg = self.config
+        if cfg.use_via_point and not ignore_collision:
+            cur_pos, cur_rot = grip_site_pose(self.driver.env)
+            if abs(pos[2] - cur_pos[2]) > cfg.via_min_height_change:
+                via_z = max(pos[2], cur_pos[2]) + cfg.via_height
+                up = move_to(
+                    self.driver,
+                    [*cur_pos[:2], via_z],
+                    mat_to_quat(cur_rot),
+                    grip,
+                    cfg.servo,
+                    max_steps=cfg.arm_budget // 2,
+                )
+                over = move_to(
+                    self.driver, [*pos[:2], via_z], quat, grip, cfg.servo, max_steps=cfg.arm_budget // 2
+                )
+                steps += up.steps + over.steps
+        arm = move_to(self.driver, pos, quat, grip, cfg.servo, max_steps=cfg.arm_budget)
+        steps += arm.steps
+
+        gripper_steps = 0
+        if want_open != self.gripper_open:
+            gripper_steps = actuate_gripper(self.driver, open=want_open, config=cfg.gripper)
+            self.gripper_open = want_open
+        return KeyframeResult(arm=arm, gripper_steps=gripper_steps, steps=steps + gripper_steps)
+
+    def execute_all(self, keyframes: Sequence[Sequence[float]] | np.ndarray) -> list[KeyframeResult]:
+        """Execute keyframes in order (shape (K, 9))."""
+        return [self.execute(kf) for kf in keyframes]

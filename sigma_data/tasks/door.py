@@ -1,0 +1,21 @@
+"""Door (latched): turn the lever to release the latch, then pull the door open about its hinge."""
+
+from __future__ import annotations
+
+from typing import TYPE_CHECKING, Any
+
+if TYPE_CHECKING:
+    from sigma_data.tasks.registry import Variation
+
+OPEN_ANGLE = 0.3  # rad; robosuite's success threshold on the hinge joint
+BOUNDS = (-0.35, -0.55, 0.75, 0.35, 0.15, 1.45)
+
+
+def hinge_angle(env: Any) -> float:
+    """Door hinge angle (rad, positive = open)."""
+    return float(env.sim.data.qpos[env.hinge_qpos_addr])
+
+
+def success(env: Any, variation: Variation) -> bool:
+    """robosuite's check: the hinge is open by more than 0.3 rad."""
+    return hinge_angle(env) > OPEN_ANGLE

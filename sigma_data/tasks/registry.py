@@ -1,0 +1,291 @@
+"""Registry of the robosuite tasks sigma collects: language variations, success checks, experts, bounds.
+
+Quick start (what the collection pipeline does per episode)::
+
+    from sigma_data.tasks import get_task, get_variation, make_env, reset_env
+
+    task = get_task("stack")
+    variation = get_variation(task, "green_on_red")
+    env = make_env(task, cameras=("agentview", "robot0_eye_in_hand"), height=128, width=128)
+    reset_env(env, task, variation, seed=3)           # deterministic; gripper fully open
+    task.expert(recorder, variation, np.random.default_rng(3))  # recorder.env is env; may raise ExpertFailure
+    ok = task.success(env, variation)                  # the instruction decides what success means
+
+Each :class:`TaskSpec` is one robosuite environment with several :class:`Variation` s; for most tasks the
+instruction names *which* object/goal counts, so a multi-task policy must read it. Adding a task is one
+entry in :data:`TASKS` plus one expert module under :mod:`sigma_data.experts`.
+
+Environment: Panda, robosuite's default composite BASIC controller (arm OSC_POSE delta, 5 cm / 0.5 rad
+per unit action), 20 Hz control, no camera observations (render from ``env.sim`` yourself), ``hard_reset=False``
+(render-context settings survive resets), ``ignore_done=True``.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Mapping, Sequence
+from dataclasses import dataclass
+from types import MappingProxyType
+from typing import Any
+
+import numpy as np
+
+from sigma_data.experts.base import ExpertFn
+from sigma_data.experts.door import door_expert
+from sigma_data.experts.lift import lift_expert
+from sigma_data.experts.nut_assembly import nut_assembly_expert
+from sigma_data.experts.pick_place import pick_place_expert
+from sigma_data.experts.stack import stack_expert
+from sigma_data.tasks import door, lift, nut_assembly, pick_place, stack
+
+Bounds = tuple[float, float, float, float, float, float]
+SuccessFn = Callable[[Any, "Variation"], bool]
+
+ROBOT = "Panda"
+CONTROL_FREQ = 20
+CONTROLLER = "BASIC"  # composite controller; its arm part is OSC_POSE (delta, base frame)
+
+
+@dataclass(frozen=True)
+class Variation:
+    """One language-conditioned variant of a task.
+
+    ``instructions[0]`` is the canonical instruction; the others are paraphrases for training.
+    ``params`` tells the expert and the success check what the instruction asks (e.g. ``{"object": "milk"}``).
+    """
+
+    name: str
+    instructions: tuple[str, ...]
+    params: Mapping[str, Any]
+
+    def __post_init__(self) -> None:
+        if not self.instructions:
+            raise ValueError(f"variation '{self.name}' needs at least one instruction")
+        object.__setattr__(self, "params", MappingProxyType(dict(self.params)))
+
+    @property
+    def instruction(self) -> str:
+        """The canonical instruction."""
+        return self.instructions[0]
+
+
+@dataclass(frozen=True)
+class TaskSpec:
+    """A robosuite task: environment, variations, policy workspace, expert and success check.
+
+    ``bounds`` is the policy workspace box ``(xmin, ymin, zmin, xmax, ymax, zmax)`` in world metres (cubes,
+    so voxel grids and orthographic virtual views stay isotropic); robosuite's table top is at z = 0.8.
+    ``max_steps`` is the control-step budget of one expert episode (20 steps = 1 s).
+    """
+
+    name: str
+    env_name: str
+    env_kwargs: Mapping[str, Any]
+    variations: tuple[Variation, ...]
+    bounds: Bounds
+    expert: ExpertFn
+    success: SuccessFn
+    max_steps: int
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "env_kwargs", MappingProxyType(dict(self.env_kwargs)))
+        lo, hi = np.asarray(self.bounds[:3]), np.asarray(self.bounds[3:])
+        if len(self.bounds) != 6 or np.any(hi <= lo):
+            raise ValueError(
+                f"task '{self.name}': bounds must be (xmin, ymin, zmin, xmax, ymax, zmax), got {self.bounds}"
+            )
+        names = [v.name for v in self.variations]
+        if not names or len(set(names)) != len(names):
+            raise ValueError(f"task '{self.name}': variation names must be unique and non-empty, got {names}")
+
+    @property
+    def variation_names(self) -> tuple[str, ...]:
+        return tuple(v.name for v in self.variations)
+
+
+def _v(name: str, params: Mapping[str, Any], *instructions: str) -> Variation:
+    return Variation(name=name, instructions=tuple(instructions), params=params)
+
+
+TASKS: dict[str, TaskSpec] = {
+    spec.name: spec
+    for spec in (
+        TaskSpec(
+            name="lift",
+            env_name="Lift",
+            env_kwargs={},
+            variations=(
+                _v("lift_cube", {}, "lift the cube", "pick up the cube", "raise the red cube off the table"),
+            ),
+            bounds=(-0.3, -0.3, 0.75, 0.3, 0.3, 1.35),
+            expert=lift_expert,
+            success=lift.success,
+            max_steps=200,
+        ),
+        TaskSpec(
+            name="stack",
+            env_name="Stack",
+            env_kwargs={},
+            variations=(
+                _v(
+                    "red_on_green",
+                    {"top": "cubeA", "bottom": "cubeB"},
+                    "stack the red cube on the green cube",
+                    "put the red block on top of the green block",
+                    "place the red cube onto the green one",
+                ),
+                _v(
+                    "green_on_red",
+                    {"top": "cubeB", "bottom": "cubeA"},
+                    "stack the green cube on the red cube",
+                    "put the green block on top of the red block",
+                    "place the green cube onto the red one",
+                ),
+            ),
+            bounds=(-0.3, -0.3, 0.75, 0.3, 0.3, 1.35),
+            expert=stack_expert,
+            success=stack.success,
+            max_steps=400,
+        ),
+        TaskSpec(
+            name="pick_place",
+            env_name="PickPlace",
+            env_kwargs={"single_object_mode": 0},
+            variations=tuple(
+                _v(
+                    obj,
+                    {"object": obj},
+                    f"put the {obj} in its bin",
+                    f"place the {obj} into its bin",
+                    f"move the {obj} to its bin",
+                    f"pick up the {obj} and drop it in its bin",
+                )
+                for obj in pick_place.OBJECTS
+            ),
+            bounds=(-0.4, -0.5, 0.75, 0.6, 0.5, 1.75),
+            expert=pick_place_expert,
+            success=pick_place.success,
+            max_steps=500,
+        ),
+        TaskSpec(
+            name="nut_assembly",
+            env_name="NutAssembly",
+            env_kwargs={"single_object_mode": 0},
+            variations=(
+                _v(
+                    "square_nut",
+                    {"nut": "square"},
+                    "put the square nut on the square peg",
+                    "fit the square nut onto the square peg",
+                    "place the square nut around the square peg",
+                ),
+                _v(
+                    "round_nut",
+                    {"nut": "round"},
+                    "put the round nut on the round peg",
+                    "fit the round nut onto the round peg",
+                    "place the round nut around the round peg",
+                ),
+            ),
+            bounds=(-0.3, -0.35, 0.78, 0.4, 0.35, 1.48),
+            expert=nut_assembly_expert,
+            success=nut_assembly.success,
+            max_steps=600,
+        ),
+        TaskSpec(
+            name="door",
+            env_name="Door",
+            env_kwargs={"use_latch": True},
+            variations=(
+                _v(
+                    "open_door",
+                    {},
+                    "open the door",
+                    "pull the door open",
+                    "turn the handle and open the door",
+                ),
+            ),
+            bounds=door.BOUNDS,
+            expert=door_expert,
+            success=door.success,
+            max_steps=600,
+        ),
+    )
+}
+
+
+def get_task(name: str) -> TaskSpec:
+    """The registered task called ``name``; ``ValueError`` listing the known tasks otherwise."""
+    try:
+        return TASKS[name]
+    except KeyError:
+        raise ValueError(f"unknown task '{name}'; known tasks: {', '.join(sorted(TASKS))}") from None
+
+
+def get_variation(task: TaskSpec, name: str) -> Variation:
+    """The variation of ``task`` called ``name``; ``ValueError`` listing its variations otherwise."""
+    for variation in task.variations:
+        if variation.name == name:
+            return variation
+    raise ValueError(
+        f"unknown variation '{name}' for task '{task.name}'; known variations: {', '.join(task.variation_names)}"
+    )
+
+
+def make_env(task: TaskSpec, cameras: Sequence[str] = (), height: int = 128, width: int = 128) -> Any:
+    """Create the robosuite environment of ``task``.
+
+    Panda with the default composite BASIC controller (arm OSC_POSE delta), ``control_freq=20``, no camera
+    observations (``use_camera_obs=False``), an offscreen renderer only if ``cameras`` are given (configured
+    for those cameras at ``height`` x ``width`` so ``env.sim.render`` works), ``ignore_done=True`` and
+    ``hard_reset=False``. Raises ``ValueError`` naming an unknown camera.
+    """
+    import robosuite as suite
+    from robosuite.controllers import load_composite_controller_config
+
+    cameras = list(cameras)
+    if height <= 0 or width <= 0:
+        raise ValueError(f"image size must be positive, got height={height}, width={width}")
+    kwargs: dict[str, Any] = {
+        "robots": ROBOT,
+        "controller_configs": load_composite_controller_config(controller=CONTROLLER, robot=ROBOT),
+        "control_freq": CONTROL_FREQ,
+        "has_renderer": False,
+        "has_offscreen_renderer": bool(cameras),
+        "use_camera_obs": False,
+        "ignore_done": True,
+        "hard_reset": False,
+        **dict(task.env_kwargs),
+    }
+    if cameras:
+        kwargs.update(camera_names=cameras, camera_heights=height, camera_widths=width, camera_depths=True)
+    env = suite.make(task.env_name, **kwargs)
+    known = set(env.sim.model.camera_names)
+    unknown = [c for c in cameras if c not in known]
+    if unknown:
+        env.close()
+        raise ValueError(
+            f"unknown camera(s) {unknown} for task '{task.name}' ({task.env_name}); known: {', '.join(sorted(known))}"
+        )
+    return env
+
+
+def reset_env(env: Any, task: TaskSpec, variation: Variation, seed: int) -> None:
+    """Reset ``env`` to the initial state of episode ``seed`` and open the gripper fully.
+
+    robosuite samples object placements and robot initial noise from NumPy's global generator; it is seeded
+    with ``seed`` for the reset and restored afterwards, so the same seed gives the same initial sim state and
+    the caller's global random state is untouched. robosuite resets the Panda gripper half-open; an
+    unrecorded pre-roll then opens it fully while holding the arm pose, so recording starts settled.
+    """
+    from sigma_data.control import EnvDriver, actuate_gripper
+
+    if variation not in task.variations:
+        raise ValueError(f"variation '{variation.name}' does not belong to task '{task.name}'")
+    saved = np.random.get_state()
+    try:
+        np.random.seed(seed)
+        env.reset()
+    finally:
+        np.random.set_state(saved)
+    actuate_gripper(EnvDriver(env), open=True)
+    env.sim.forward()

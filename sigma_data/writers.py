@@ -1,0 +1,412 @@
+"""Write :class:`~sigma_data.episode.Episode` s into the two LeRobot v3 datasets of the data contract.
+
+* :class:`DenseWriter`: every frame; ``action`` = the executed 7-D OSC delta; keyframe flag and episode-relative
+  next-keyframe index in ``sigma.*`` columns stock policies ignore. Cameras as video by default (RGB AV1, depth
+  12-bit log-quantised lossless HEVC over a tabletop range, streaming encoding).
+* :class:`KeyframeWriter`: per episode the decision points (start frame, then each keyframe); frame i's
+  ``action`` is frame i+1's 9-D pose ``[x, y, z, qx, qy, qz, qw, gripper_open, ignore_collision]`` (the last
+  frame repeats its own), so the goal of frame i is frame i+1. Cameras as ``dtype="image"`` by default (exact
+  float depth, fast random reads). Optional RVT-style augmentation chains (one extra episode starting at every
+  N-th frame) with ``augment_every = N``. ``sigma.source_frame`` links each frame to the dense episode frame.
+
+Writers take pixels lazily: :meth:`SigmaWriter.add_episode` gets a ``views(t)`` callable and asks only for
+:meth:`SigmaWriter.frame_indices`, so the caller renders just the frames that are stored.
+Both writers finalize LeRobot's writer on exit (use them as context managers; ``finalize()`` is idempotent)
+and keep a provenance sidecar ``meta/sigma.json`` (LeRobot never rewrites it) with versions, conventions,
+calibration notes and one record per written episode (task, variation, seed, keyframes, ...).
+"""
+
+from __future__ import annotations
+
+import json
+import shutil
+from collections.abc import Callable, Mapping, Sequence
+from dataclasses import asdict, dataclass
+from pathlib import Path
+from typing import Any, Literal
+
+import numpy as np
+
+from sigma_data.episode import (
+    DENSE_ACTION_NAMES,
+    KEYFRAME_ACTION_NAMES,
+    STATE_NAMES,
+    CameraViews,
+    Episode,
+)
+from sigma_data.keyframes import keyframe_mask, next_keyframe_index
+
+SIDECAR = Path("meta") / "sigma.json"
+FPS = 20
+ROBOT_TYPE = "panda"
+CONVENTIONS = {
+    "quaternion": "xyzw, w >= 0",
+    "pose": "grip site (gripper0_right_grip_site) in the world frame, metres",
+    "extrinsics": "camera-to-world 4x4, OpenCV axes (x right, y down, z forward)",
+    "intrinsics": "3x3 pinhole, f = 0.5 H / tan(fovy / 2), c = (W/2, H/2); pixel centres at +0.5",
+    "depth": "metric z-depth along the optical axis, metres; background clipped to render.max_depth",
+    "images": "upright (row 0 at the top)",
+    "dense_action": "robosuite OSC_POSE delta [dx, dy, dz, rx, ry, rz, grip], base frame, 5 cm / 0.5 rad per unit,"
+    " grip +1 close / -1 open; the final frame holds (zero motion, last grip)",
+    "keyframe_action": "next keyframe [x, y, z, qx, qy, qz, qw, gripper_open, ignore_collision]; the last "
+    "frame repeats its own pose and is a goal only",
+    "gripper_open": "1 if the last commanded grip was open (< 0), else 0",
+    "frames": "frame t is the observation before action t",
+}
+
+ViewsFn = Callable[[int], CameraViews]
+StaticCalibration = Mapping[str, tuple[np.ndarray, np.ndarray]]
+
+
+@dataclass(frozen=True)
+class DatasetLayout:
+    """What every frame carries: cameras and image size (pixels)."""
+
+    cameras: tuple[str, ...]
+    height: int
+    width: int
+
+
+@dataclass(frozen=True)
+class DepthRange:
+    """Depth quantiser range for video depth, metres (12-bit log codes; values outside are clipped)."""
+
+    depth_min: float = 0.02
+    depth_max: float = 3.0
+
+
+def camera_features(
+    layout: DatasetLayout, dtype: str, static_calibration: StaticCalibration | None = None
+) -> dict[str, dict]:
+    """LeRobot feature specs of the contract's camera features (RGB, depth, per-frame K and E)."""
+    h, w = layout.height, layout.width
+    feats: dict[str, dict] = {}
+    for cam in layout.cameras:
+        rgb_info: dict[str, Any] = {}
+        if static_calibration and cam in static_calibration:
+            K, E = static_calibration[cam]
+            rgb_info = {
+                "sigma.intrinsics": np.asarray(K, dtype=np.float32).tolist(),
+                "sigma.extrinsics": np.asarray(E, dtype=np.float32).tolist(),
+            }
+        feats[f"observation.images.{cam}"] = {
+            "dtype": dtype,
+            "shape": (h, w, 3),
+            "names": ["height", "width", "channels"],
+            **({"info": rgb_info} if rgb_info else {}),
+        }
+        feats[f"observation.images.{cam}_depth"] = {
+            "dtype": dtype,
+            "shape": (h, w, 1),
+            "names": ["height", "width", "channels"],
+            "info": {"is_depth_map": True},
+        }
+        feats[f"observation.camera.{cam}.intrinsics"] = {"dtype": "float32", "shape": (3, 3), "names": None}
+        feats[f"observation.camera.{cam}.extrinsics"] = {"dtype": "float32", "shape": (4, 4), "names": None}
+    return feats
+
+
+def _camera_frame_values(layout: DatasetLayout, views: CameraViews, where: str) -> dict[str, np.ndarray]:
+    out: dict[str, np.ndarray] = {}
+    for cam in layout.cameras:
+        if cam not in views:
+            raise KeyError(f"{where}: no view of camera '{cam}' (have {sorted(views)})")
+        v = views[cam]
+        if v.rgb.shape != (layout.height, layout.width, 3):
+            raise ValueError(
+                f"{where}: camera '{cam}' rgb is {v.rgb.shape}, expected {(layout.height, layout.width, 3)}"
+            )
+        out[f"observation.images.{cam}"] = v.rgb
+        out[f"observation.images.{cam}_depth"] = v.depth.reshape(layout.height, layout.width, 1).astype(
+            np.float32
+        )
+        out[f"observation.camera.{cam}.intrinsics"] = np.asarray(v.intrinsics, dtype=np.float32)
+        out[f"observation.camera.{cam}.extrinsics"] = np.asarray(v.extrinsics, dtype=np.float32)
+    return out
+
+
+def versions() -> dict[str, str]:
+    """Versions of sigma and the simulator / dataset stack."""
+    from importlib.metadata import PackageNotFoundError, version
+
+    out = {}
+    for name, dist in (
+        ("sigma", "lerobot_policy_sigma"),
+        ("robosuite", "robosuite"),
+        ("mujoco", "mujoco"),
+        ("lerobot", "lerobot"),
+    ):
+        try:
+            out[name] = version(dist)
+        except PackageNotFoundError:
+            out[name] = "unknown"
+    return out
+
+
+def read_sidecar(root: Path) -> dict[str, Any]:
+    path = Path(root) / SIDECAR
+    if not path.exists():
+        raise FileNotFoundError(f"{root}: no provenance sidecar {SIDECAR}")
+    return json.loads(path.read_text())
+
+
+class SigmaWriter:
+    """Base class: owns one LeRobot writer and the provenance sidecar. Use as a context manager.
+
+    ``provenance`` is any JSON-able dataset-level record (controller, env kwargs, bounds, render settings...);
+    versions and conventions are added. ``overwrite`` deletes an existing ``root`` first (LeRobot's ``create``
+    refuses an existing directory).
+    """
+
+    kind: Literal["dense", "keyframe"]
+    action_names: tuple[str, ...]
+
+    def __init__(
+        self,
+        root: str | Path,
+        layout: DatasetLayout,
+        repo_id: str = "local/sigma",
+        provenance: Mapping[str, Any] | None = None,
+        static_calibration: StaticCalibration | None = None,
+        use_videos: bool = False,
+        streaming_encoding: bool = True,
+        depth_range: DepthRange = DepthRange(),
+        image_writer_threads: int = 0,
+        overwrite: bool = False,
+    ):
+        from lerobot.configs.video import DepthEncoderConfig
+        from lerobot.datasets.lerobot_dataset import LeRobotDataset
+
+        self.root = Path(root)
+        self.layout = layout
+        if self.root.exists():
+            if not overwrite:
+                raise FileExistsError(f"{self.root} already exists (pass overwrite=True to replace it)")
+            shutil.rmtree(self.root)
+        self.features = self.features_for(layout, "video" if use_videos else "image", static_calibration)
+        self.dataset = LeRobotDataset.create(
+            repo_id=repo_id,
+            fps=FPS,
+            features=self.features,
+            root=self.root,
+            robot_type=ROBOT_TYPE,
+            use_videos=use_videos,
+            streaming_encoding=streaming_encoding and use_videos,
+            depth_encoder=DepthEncoderConfig(
+                depth_min=depth_range.depth_min, depth_max=depth_range.depth_max
+            ),
+            image_writer_threads=image_writer_threads,
+            video_backend="pyav",  # read-back decoder; torchcodec cannot load here (lerobot_notes §6)
+        )
+        self.provenance: dict[str, Any] = {
+            "kind": self.kind,
+            **versions(),
+            "fps": FPS,
+            "cameras": list(layout.cameras),
+            "image_size": [layout.height, layout.width],
+            "storage": "video" if use_videos else "image",
+            "depth_video_range_m": [depth_range.depth_min, depth_range.depth_max] if use_videos else None,
+            "state_names": list(STATE_NAMES),
+            "action_names": list(self.action_names),
+            "conventions": CONVENTIONS,
+            **dict(provenance or {}),
+        }
+        self.episodes: list[dict[str, Any]] = []
+        self.num_frames = 0
+        self._finalized = False
+
+    # ---- to implement -------------------------------------------------------------------------------
+    @classmethod
+    def _extra_features(cls) -> dict[str, dict]:
+        raise NotImplementedError
+
+    def frame_indices(self, episode: Episode) -> list[int]:
+        """Sorted frames of ``episode`` this writer will ask ``views`` for."""
+        raise NotImplementedError
+
+    def _write(self, episode: Episode, views: ViewsFn) -> None:
+        raise NotImplementedError
+
+    # ---- shared -------------------------------------------------------------------------------------
+    @classmethod
+    def features_for(
+        cls, layout: DatasetLayout, dtype: str, static_calibration: StaticCalibration | None = None
+    ) -> dict[str, dict]:
+        """The LeRobot features of this dataset kind; cameras stored as ``dtype`` ("video" or "image")."""
+        feats = camera_features(layout, dtype, static_calibration)
+        feats["observation.state"] = {
+            "dtype": "float32",
+            "shape": (len(STATE_NAMES),),
+            "names": list(STATE_NAMES),
+        }
+        feats["action"] = {
+            "dtype": "float32",
+            "shape": (len(cls.action_names),),
+            "names": list(cls.action_names),
+        }
+        feats.update(cls._extra_features())
+        return feats
+
+    def add_episode(self, episode: Episode, views: ViewsFn) -> int:
+        """Write ``episode`` (one or more LeRobot episodes); returns how many LeRobot episodes were added.
+
+        A failure mid-episode discards the partial episode (nothing already saved is lost) and re-raises.
+        """
+        if self._finalized:
+            raise RuntimeError(f"{self.root}: writer already finalized")
+        before = len(self.episodes)
+        try:
+            self._write(episode, views)
+        except BaseException:
+            self.dataset.clear_episode_buffer()
+            del self.episodes[before:]
+            raise
+        return len(self.episodes) - before
+
+    def _add_frame(self, values: dict[str, Any], episode: Episode) -> None:
+        self.dataset.add_frame({**values, "task": episode.instruction})
+
+    def _save_episode(self, episode: Episode, frames: Sequence[int], **extra: Any) -> None:
+        self.dataset.save_episode()
+        self.num_frames += len(frames)
+        self.episodes.append(
+            {
+                "episode_index": len(self.episodes),
+                "task": episode.task,
+                "variation": episode.variation,
+                "instruction": episode.instruction,
+                "seed": episode.seed,
+                "length": len(frames),
+                "source_length": len(episode),
+                "keyframes": episode.keyframe_indices,
+                "keyframe_sources": [k.source for k in episode.keyframes],
+                **extra,
+                **({"provenance": episode.provenance} if episode.provenance else {}),
+            }
+        )
+
+    def write_sidecar(self) -> None:
+        path = self.root / SIDECAR
+        path.parent.mkdir(parents=True, exist_ok=True)
+        record = {**self.provenance, "num_episodes": len(self.episodes), "num_frames": self.num_frames}
+        record["episodes"] = self.episodes
+        tmp = path.with_suffix(".json.tmp")
+        tmp.write_text(json.dumps(record, indent=1, default=_json_default))
+        tmp.replace(path)
+
+    def finalize(self) -> None:
+        """Finalize LeRobot's writer (mandatory for a readable dataset) and write the sidecar. Idempotent."""
+        if self._finalized:
+            return
+        self._finalized = True
+        try:
+            self.dataset.finalize()
+        finally:
+            self.write_sidecar()
+
+    def __enter__(self) -> SigmaWriter:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.finalize()
+
+
+def _json_default(obj: Any) -> Any:
+    if isinstance(obj, np.ndarray):
+        return obj.tolist()
+    if isinstance(obj, np.generic):
+        return obj.item()
+    if isinstance(obj, Path):
+        return str(obj)
+    if hasattr(obj, "__dataclass_fields__"):
+        return asdict(obj)
+    raise TypeError(f"not JSON-serialisable: {type(obj).__name__}")
+
+
+class DenseWriter(SigmaWriter):
+    """Every control step of every episode (video cameras by default)."""
+
+    kind = "dense"
+    action_names = DENSE_ACTION_NAMES
+
+    def __init__(self, root: str | Path, layout: DatasetLayout, use_videos: bool = True, **kwargs: Any):
+        super().__init__(root, layout, use_videos=use_videos, **kwargs)
+
+    @classmethod
+    def _extra_features(cls) -> dict[str, dict]:
+        return {
+            "sigma.is_keyframe": {"dtype": "bool", "shape": (1,), "names": None},
+            "sigma.next_keyframe_index": {"dtype": "int64", "shape": (1,), "names": None},
+        }
+
+    def frame_indices(self, episode: Episode) -> list[int]:
+        return list(range(len(episode)))
+
+    def _write(self, episode: Episode, views: ViewsFn) -> None:
+        T = len(episode)
+        is_kf = keyframe_mask(episode.keyframe_indices, T)
+        nxt = next_keyframe_index(episode.keyframe_indices, T)
+        for t in range(T):
+            values = _camera_frame_values(self.layout, views(t), f"{episode.name} frame {t}")
+            values["observation.state"] = episode.states[t]
+            values["action"] = episode.actions[t]
+            values["sigma.is_keyframe"] = np.array([is_kf[t]])
+            values["sigma.next_keyframe_index"] = np.array([nxt[t]], dtype=np.int64)
+            self._add_frame(values, episode)
+        self._save_episode(episode, range(T))
+
+
+class KeyframeWriter(SigmaWriter):
+    """Decision points only (``dtype="image"`` cameras by default); optional augmentation chains.
+
+    ``augment_every = N > 0`` adds, for every frame ``s = N, 2N, ...`` before the last keyframe, an extra
+    episode ``[s, keyframes after s]`` (RVT's demo augmentation), recorded in the sidecar as ``chain_start``.
+    """
+
+    kind = "keyframe"
+    action_names = KEYFRAME_ACTION_NAMES
+
+    def __init__(
+        self,
+        root: str | Path,
+        layout: DatasetLayout,
+        use_videos: bool = False,
+        augment_every: int = 0,
+        **kwargs: Any,
+    ):
+        if augment_every < 0:
+            raise ValueError(f"augment_every must be >= 0, got {augment_every}")
+        self.augment_every = augment_every
+        super().__init__(root, layout, use_videos=use_videos, **kwargs)
+        self.provenance["augment_every"] = augment_every
+
+    @classmethod
+    def _extra_features(cls) -> dict[str, dict]:
+        return {"sigma.source_frame": {"dtype": "int64", "shape": (1,), "names": None}}
+
+    def chain_starts(self, episode: Episode) -> list[int]:
+        last = episode.keyframe_indices[-1]
+        starts = [0]
+        if self.augment_every:
+            starts += list(range(self.augment_every, last, self.augment_every))
+        return starts
+
+    def frame_indices(self, episode: Episode) -> list[int]:
+        return sorted({t for s in self.chain_starts(episode) for t in episode.decision_frames(s)})
+
+    def _write(self, episode: Episode, views: ViewsFn) -> None:
+        poses = episode.keyframe_poses()  # (K, 9)
+        pose_of = dict(zip(episode.keyframe_indices, poses, strict=True))
+        cache: dict[int, dict[str, np.ndarray]] = {}
+        for start in self.chain_starts(episode):
+            frames = episode.decision_frames(start)
+            for i, t in enumerate(frames):
+                if t not in cache:
+                    cache[t] = _camera_frame_values(self.layout, views(t), f"{episode.name} frame {t}")
+                goal = frames[min(i + 1, len(frames) - 1)]
+                values = dict(cache[t])
+                values["observation.state"] = episode.states[t]
+                values["action"] = pose_of[goal]
+                values["sigma.source_frame"] = np.array([t], dtype=np.int64)
+                self._add_frame(values, episode)
+            self._save_episode(episode, frames, chain_start=start, source_frames=frames)
