@@ -19,7 +19,7 @@ uses: the one named at construction, else ``variations[seed % n]`` (deterministi
 from __future__ import annotations
 
 from collections.abc import Sequence
-from typing import Any
+from typing import Any, ClassVar
 
 import gymnasium as gym
 import numpy as np
@@ -45,7 +45,7 @@ def parse_task(spec: str) -> tuple[TaskSpec, str | None]:
 class SigmaRobosuiteEnv(gym.Env):
     """One keyframe per ``step``; see the module docstring for the observation and episode conventions."""
 
-    metadata = {"render_modes": ["rgb_array"], "render_fps": 2}
+    metadata: ClassVar[dict] = {"render_modes": ["rgb_array"], "render_fps": 2}
 
     def __init__(
         self,
@@ -64,7 +64,9 @@ class SigmaRobosuiteEnv(gym.Env):
         if self.render_camera not in self.cameras:
             raise ValueError(f"render_camera '{self.render_camera}' is not among the cameras {self.cameras}")
         self.env = make_env(self.task, cameras=self.cameras, height=image_size, width=image_size)
-        self.rig = CameraRig(self.env, RenderConfig(cameras=self.cameras, height=image_size, width=image_size))
+        self.rig = CameraRig(
+            self.env, RenderConfig(cameras=self.cameras, height=image_size, width=image_size)
+        )
         self.executor_config = executor or ExecutorConfig()
         self.variation = get_variation(self.task, self.fixed_variation or self.task.variation_names[0])
         self._executor: KeyframeExecutor | None = None

@@ -53,7 +53,7 @@ def test_replaying_expert_keyframes_succeeds(lift_env):
     lift_env.reset(seed=5)
     terminated = False
     for kf in keyframes:
-        _, reward, terminated, truncated, info = lift_env.step(kf)
+        _, reward, terminated, _, info = lift_env.step(kf)
         if terminated:
             break
     assert terminated and info["is_success"] and reward == 1.0
