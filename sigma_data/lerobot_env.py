@@ -35,6 +35,8 @@ class SigmaRobosuiteEnvConfig(EnvConfig):
     episode_length: int = 10
     cameras: tuple[str, ...] = DEFAULT_CAMERAS
     image_size: int = 128
+    # Unit of the depth observations: "mm" like stock LeRobotDataset's default read-back, or "m".
+    depth_unit: str = "mm"
     render_mode: str = "rgb_array"
     features: dict[str, PolicyFeature] = field(default_factory=dict)
     features_map: dict[str, str] = field(default_factory=dict)
@@ -72,5 +74,6 @@ class SigmaRobosuiteEnvConfig(EnvConfig):
             "cameras": tuple(self.cameras),
             "image_size": self.image_size,
             "render_mode": self.render_mode,
+            "depth_unit": self.depth_unit,
             "max_episode_steps": self.episode_length,
         }

@@ -7,7 +7,9 @@ returns the observation the policy needs, rendered from ``env.sim`` after ``forw
 data (:class:`~sigma_data.cameras.CameraRig`):
 
 * ``pixels``: ``{camera: (H, W, 3) uint8}`` upright RGB (LeRobot maps it to ``observation.images.<cam>``);
-* ``images.<cam>_depth``: ``(1, H, W)`` float32 metres (-> ``observation.images.<cam>_depth``);
+* ``images.<cam>_depth``: ``(1, H, W)`` float32 depth in ``depth_unit`` (-> ``observation.images.<cam>_depth``):
+  millimetres by default, the unit stock ``LeRobotDataset`` returns by default (``depth_output_unit="mm"``), so a
+  policy trained by plain ``lerobot-train`` sees the same numbers in evaluation; ``"m"`` for metres;
 * ``camera.<cam>.intrinsics`` (3, 3) and ``camera.<cam>.extrinsics`` (4, 4, camera-to-world, OpenCV axes);
 * ``agent_pos``: the 10-D ``observation.state`` of the data contract.
 
@@ -30,6 +32,7 @@ from sigma_data.record import robot_state
 from sigma_data.tasks.registry import TaskSpec, get_task, get_variation, make_env, reset_env
 
 GYM_ID = "sigma/Robosuite-v0"
+DEPTH_SCALE = {"m": 1.0, "mm": 1000.0}  # rendered metres -> the unit handed to the policy
 ACTION_NAMES = ("x", "y", "z", "qx", "qy", "qz", "qw", "gripper_open", "ignore_collision")
 
 
@@ -55,8 +58,12 @@ class SigmaRobosuiteEnv(gym.Env):
         executor: ExecutorConfig | None = None,
         render_mode: str | None = "rgb_array",
         render_camera: str | None = None,
+        depth_unit: str = "mm",
     ):
         super().__init__()
+        if depth_unit not in DEPTH_SCALE:
+            raise ValueError(f"depth_unit must be one of {sorted(DEPTH_SCALE)}, got {depth_unit!r}")
+        self.depth_scale = DEPTH_SCALE[depth_unit]
         self.task, self.fixed_variation = parse_task(task)
         self.cameras = tuple(cameras)
         self.render_mode = render_mode
@@ -96,7 +103,7 @@ class SigmaRobosuiteEnv(gym.Env):
             "agent_pos": robot_state(self.env, self._executor.gripper_open if self._executor else True),
         }
         for cam, v in views.items():
-            obs[f"images.{cam}_depth"] = v.depth[None]
+            obs[f"images.{cam}_depth"] = v.depth[None] * np.float32(self.depth_scale)
             obs[f"camera.{cam}.intrinsics"] = v.intrinsics
             obs[f"camera.{cam}.extrinsics"] = v.extrinsics
         self._last_rgb = views[self.render_camera].rgb

@@ -1,0 +1,1 @@
+"""Benchmarks: speed and quality reports printed as Markdown tables (not tests)."""

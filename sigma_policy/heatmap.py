@@ -1,0 +1,90 @@
+"""Translation heatmaps: Gaussian targets per view and the factorised heatmap -> 3D point back-projection.
+
+Pixel convention: the renderer's exact alignment (``sigma_policy.renderer``): continuous coordinates ``(u, v)``,
+pixel ``(row i, col j)`` centred at ``(j + 0.5, i + 0.5)``.
+
+Back-projection (model_spec §2.5, §11.3). Candidates are the ``S^3`` cube voxel centres
+``g_k = -1 + (2k + 1) / S``. With exact alignment a voxel centre projects exactly onto a pixel centre in every
+view (``(1 +- g_k) S / 2 = k + 0.5`` or ``S - k - 0.5``), so RVT's 4-neighbour interpolation reduces to reading
+one pixel, and each view's score depends on only two of the three voxel indices. The score of voxel ``(a, b, c)``
+is the mean over views of the per-view softmax probabilities at its pixels, evaluated by broadcasting
+``top[a, b] + front[a, c] + back[a, c] + left[b, c] + right[b, c]`` in chunks; the argmax voxel centre is the
+prediction. Never a cached 10 M-point grid; peak memory about ``B * chunk * S^2`` floats.
+"""
+
+from __future__ import annotations
+
+import math
+
+import torch
+from torch import Tensor
+
+from sigma_policy.renderer import VIEW_AXES
+
+__all__ = ["gaussian_heatmaps", "heatmap_to_cube_point", "voxel_centres"]
+
+
+def gaussian_heatmaps(uv: Tensor, img_size: int, sigma: float = 1.5) -> Tensor:
+    """Gaussian targets ``(B, V, H, W)`` centred at continuous pixel coordinates ``uv (B, V, 2)`` (u = column).
+
+    ``exp(-d^2 / (2 sigma^2))`` with ``d`` the distance from ``(u, v)`` to each pixel centre, zero beyond 3 sigma,
+    normalised to sum 1 per view (model_spec §6). A view whose target lies more than 3 sigma outside the image is
+    all zeros.
+    """
+    if uv.ndim != 3 or uv.shape[-1] != 2:
+        raise ValueError(f"uv must be (B, V, 2), got {tuple(uv.shape)}")
+    centres = torch.arange(img_size, device=uv.device, dtype=torch.float32) + 0.5
+    du2 = (centres - uv[..., 0:1].float()).square()  # (B, V, W)
+    dv2 = (centres - uv[..., 1:2].float()).square()  # (B, V, H)
+    d2 = dv2[..., :, None] + du2[..., None, :]
+    hm = torch.exp(-d2 / (2 * sigma**2))
+    hm = torch.where(d2 <= (3 * sigma) ** 2, hm, 0)
+    return hm / hm.sum((-2, -1), keepdim=True).clamp_min(1e-12)
+
+
+def voxel_centres(img_size: int, device: torch.device | str | None = None) -> Tensor:
+    """Cube coordinates ``(S,)`` of the voxel centres along one axis: ``-1 + (2k + 1) / S``."""
+    return -1 + (2 * torch.arange(img_size, device=device, dtype=torch.float32) + 1) / img_size
+
+
+def _view_score(prob: Tensor, view: int, S: int) -> tuple[Tensor, tuple[int, int]]:
+    """Per-view probabilities re-indexed by voxel indices: returns ``(B, S, S)`` indexed ``[k_first, k_second]``
+    over the two cube axes (sorted) that the view sees, and those axes."""
+    u_axis, u_sign, v_axis, v_sign, _, _ = VIEW_AXES[view]
+    # Voxel index k along an axis lands on pixel k (sign +1) or S - 1 - k (sign -1).
+    img = prob  # (B, H=rows <- v axis, W=cols <- u axis)
+    if v_sign < 0:
+        img = img.flip(-2)
+    if u_sign < 0:
+        img = img.flip(-1)
+    if v_axis < u_axis:
+        return img, (v_axis, u_axis)
+    return img.transpose(-2, -1), (u_axis, v_axis)
+
+
+def heatmap_to_cube_point(logits: Tensor, img_size: int, chunk: int = 16) -> Tensor:
+    """Factorised argmax of the mean per-view softmax over the ``S^3`` voxel grid: logits ``(B, V, H, W)`` ->
+    cube point ``(B, 3)`` (a voxel centre). ``chunk`` x-slices are scored at a time."""
+    B, V, H, W = logits.shape
+    S = img_size
+    if (len(VIEW_AXES), S, S) != (V, H, W):
+        raise ValueError(f"logits must be (B, {len(VIEW_AXES)}, {S}, {S}), got {tuple(logits.shape)}")
+    prob = torch.softmax(logits.float().flatten(2), dim=-1).view(B, V, S, S)
+    pair_sum: dict[tuple[int, int], Tensor] = {}
+    for view in range(V):
+        score, axes = _view_score(prob[:, view], view, S)
+        pair_sum[axes] = pair_sum[axes] + score if axes in pair_sum else score
+    zeros = torch.zeros(B, S, S, device=logits.device)
+    xy, xz, yz = (pair_sum.get(k, zeros) for k in ((0, 1), (0, 2), (1, 2)))
+    best_val = torch.full((B,), -math.inf, device=logits.device)
+    best_idx = torch.zeros(B, dtype=torch.long, device=logits.device)
+    for a0 in range(0, S, chunk):
+        a1 = min(S, a0 + chunk)
+        score = xy[:, a0:a1, :, None] + xz[:, a0:a1, None, :] + yz[:, None, :, :]  # (B, a, S, S)
+        val, idx = score.flatten(1).max(1)
+        better = val > best_val
+        best_val = torch.where(better, val, best_val)
+        best_idx = torch.where(better, idx + a0 * S * S, best_idx)
+    a, rem = best_idx // (S * S), best_idx % (S * S)
+    g = voxel_centres(S, logits.device)
+    return torch.stack([g[a], g[rem // S], g[rem % S]], dim=-1)

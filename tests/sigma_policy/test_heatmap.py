@@ -1,0 +1,54 @@
+"""Gaussian heatmap targets and the factorised heatmap -> 3D point back-projection."""
+
+from __future__ import annotations
+
+import pytest
+import torch
+
+from sigma_policy.heatmap import gaussian_heatmaps, heatmap_to_cube_point, voxel_centres
+from sigma_policy.renderer import VirtualViewRenderer
+
+
+def test_gaussian_heatmap_properties() -> None:
+    uv = torch.tensor([[[10.5, 20.5], [0.2, 219.9], [-30.0, 5.0], [110.0, 110.0], [3.7, 4.1]]])
+    hm = gaussian_heatmaps(uv, 220, sigma=1.5)
+    assert hm.shape == (1, 5, 220, 220)
+    sums = hm.sum((-2, -1))[0]
+    torch.testing.assert_close(sums[[0, 1, 3, 4]], torch.ones(4))
+    assert sums[2] == 0  # more than 3 sigma outside the image
+    assert hm[0, 0].argmax() == 20 * 220 + 10  # peak at the pixel whose centre is the target
+    # Zero beyond 3 sigma of the target, positive within.
+    rows, cols = torch.meshgrid(torch.arange(220) + 0.5, torch.arange(220) + 0.5, indexing="ij")
+    d = ((cols - 10.5) ** 2 + (rows - 20.5) ** 2).sqrt()
+    assert (hm[0, 0][d > 4.5] == 0).all() and (hm[0, 0][d <= 4.5] > 0).all()
+
+
+@pytest.mark.parametrize("S", [220, 64])
+def test_round_trip_point_heatmap_point_within_half_voxel(S: int) -> None:
+    renderer = VirtualViewRenderer(img_size=S)
+    g = torch.Generator().manual_seed(S)
+    pts = torch.rand(12, 1, 3, generator=g) * 1.98 - 0.99
+    uv = renderer.project(pts)[:, 0]  # (B, V, 2)
+    logits = torch.log(gaussian_heatmaps(uv, S) + 1e-12)
+    got = heatmap_to_cube_point(logits, S)
+    err = (got - pts[:, 0]).abs().max()
+    assert err <= 1 / S + 1e-5, err  # half a voxel = 1/S cube units
+
+
+def test_back_projection_matches_brute_force_grid() -> None:
+    """Factorised argmax == argmax over the explicit S^3 voxel grid projected into every view."""
+    S = 24
+    renderer = VirtualViewRenderer(img_size=S)
+    logits = torch.randn(3, 5, S, S, generator=torch.Generator().manual_seed(0))
+    prob = torch.softmax(logits.flatten(2), -1).view(3, 5, S, S)
+    g = voxel_centres(S)
+    grid = torch.stack(torch.meshgrid(g, g, g, indexing="ij"), -1).view(1, -1, 3)
+    uv = renderer.project(grid)[0].floor().long()  # (S^3, V, 2) pixel (col, row) of each voxel centre
+    score = sum(prob[:, v, uv[:, v, 1], uv[:, v, 0]] for v in range(5)) / 5  # (B, S^3)
+    want = grid[0][score.argmax(-1)]
+    torch.testing.assert_close(heatmap_to_cube_point(logits, S, chunk=5), want)
+
+
+def test_bad_shape_raises() -> None:
+    with pytest.raises(ValueError, match="logits"):
+        heatmap_to_cube_point(torch.zeros(1, 4, 8, 8), 8)

@@ -1,0 +1,103 @@
+"""Text encoders: a tiny CLIP built and saved by the test, the packaged MiniLM, and per-instruction caching."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import pytest
+import torch
+from transformers import CLIPTextConfig, CLIPTextModel
+
+from sigma_policy.text_encoder import CLIPTextEncoder, MiniLMTextEncoder, make_text_encoder, minilm_model_dir
+
+
+def bytes_to_unicode() -> dict[int, str]:
+    """GPT-2 / CLIP byte-level alphabet: printable bytes map to themselves, the rest to code points >= 256."""
+    keep = [*range(ord("!"), ord("~") + 1), *range(ord("¡"), ord("¬") + 1), *range(ord("®"), ord("ÿ") + 1)]
+    extra = [b for b in range(256) if b not in keep]
+    return dict(
+        zip(keep + extra, [chr(b) for b in keep] + [chr(256 + i) for i in range(len(extra))], strict=True)
+    )
+
+
+WORDS = ["pick", "up", "the", "red", "cube", "stack", "on", "green", "open", "door"]
+
+
+def _tiny_clip(tmp: Path) -> Path:
+    """A random 2-layer CLIP text tower with a small byte-level BPE vocabulary, saved like a hub checkout."""
+    chars = list(bytes_to_unicode().values())
+    vocab_list = chars + [c + "</w>" for c in chars]
+    merges = []
+    for w in WORDS:  # merge each word left to right so it becomes one token "word</w>"
+        cur = w[0]
+        for i, c in enumerate(w[1:], 1):
+            nxt = c + ("</w>" if i == len(w) - 1 else "")
+            merges.append((cur, nxt))
+            cur = cur + nxt
+            vocab_list.append(cur)
+    vocab_list += ["<|startoftext|>", "<|endoftext|>"]
+    vocab = {t: i for i, t in enumerate(dict.fromkeys(vocab_list))}
+    merges = list(dict.fromkeys(merges))
+    from transformers import CLIPTokenizer
+
+    CLIPTokenizer(vocab=vocab, merges=merges).save_pretrained(tmp)
+    eos = vocab["<|endoftext|>"]
+    cfg = CLIPTextConfig(
+        vocab_size=len(vocab), hidden_size=32, intermediate_size=64, num_hidden_layers=2, num_attention_heads=4,
+        max_position_embeddings=77, bos_token_id=vocab["<|startoftext|>"], eos_token_id=eos, pad_token_id=eos,
+    )  # fmt: skip
+    torch.manual_seed(0)
+    CLIPTextModel(cfg).save_pretrained(tmp)
+    return tmp
+
+
+def test_clip_encoder_features_and_cache(tmp_path: Path) -> None:
+    enc = CLIPTextEncoder(str(_tiny_clip(tmp_path)), max_length=77)
+    assert (enc.token_dim, enc.sentence_dim, enc.max_length) == (32, 32, 77)
+    assert not any(p.requires_grad for p in enc.parameters())
+    texts = ["pick up the red cube", "stack red on green", "pick up the red cube"]
+    feats = enc.encode(texts)
+    assert feats.tokens.shape == (3, 77, 32) and feats.sentence.shape == (3, 32)
+    assert enc.calls == 1
+    torch.testing.assert_close(feats.tokens[0], feats.tokens[2])
+    # sentence = the final-LN state at the end-of-text token (no projection).
+    ids = enc.tokenizer(texts[0])["input_ids"]
+    assert len(ids) == 7  # <sot> pick up the red cube <eot>: the tiny BPE merges whole words
+    torch.testing.assert_close(feats.sentence[0], feats.tokens[0, len(ids) - 1])
+    # Cached instructions never re-run the model; a new one runs it once more.
+    enc.encode(["stack red on green"])
+    assert enc.calls == 1
+    enc.encode(["open door", "pick up the red cube", "open door"])
+    assert enc.calls == 2
+    # Batching does not change the features.
+    fresh = CLIPTextEncoder(str(tmp_path))
+    torch.testing.assert_close(fresh.encode(["open door"]).tokens, enc.encode(["open door"]).tokens)
+
+
+def test_make_text_encoder_errors(tmp_path: Path) -> None:
+    with pytest.raises(ValueError, match="name_or_path"):
+        make_text_encoder("clip")
+    with pytest.raises(ValueError, match="unknown"):
+        make_text_encoder("t5")
+    with pytest.raises(OSError, match=str(tmp_path)):
+        CLIPTextEncoder(str(tmp_path))
+
+
+def test_minilm_matches_sentence_transformers_and_caches() -> None:
+    from sentence_transformers import SentenceTransformer
+
+    enc = make_text_encoder("minilm")
+    assert isinstance(enc, MiniLMTextEncoder) and enc.token_dim == 384
+    texts = ["pick up the red cube", "open the door", "pick up the red cube"]
+    feats = enc.encode(texts)
+    assert feats.tokens.shape == (3, 77, 384) and enc.calls == 1
+    ref = SentenceTransformer(str(minilm_model_dir()), device="cpu").encode(texts, convert_to_tensor=True)
+    torch.testing.assert_close(feats.sentence, ref, atol=1e-5, rtol=0)
+    # Real pretrained weights: paraphrases are closer than unrelated instructions.
+    s = enc.encode(["lift the red block", "open the door"]).sentence
+    assert float(s[0] @ feats.sentence[0]) > float(s[1] @ feats.sentence[0]) + 0.2
+
+
+def test_minilm_refuses_wrong_checksum() -> None:
+    with pytest.raises(ValueError, match="SHA-256"):
+        MiniLMTextEncoder(expected_sha256="0" * 64)
