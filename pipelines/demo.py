@@ -1,0 +1,226 @@
+"""``make demo``: the whole sigma job, offline, on embedded defaults, on a 2-core CPU.
+
+Stages (each shows progress; the run ends with a short table and the paths it wrote):
+
+1. **collect** a small multi-task dataset with the scripted experts (dense and keyframe LeRobot datasets);
+2. **validate** both against the data contract (``sigma-data validate``);
+3. **train** the ``small`` Σ-agent policy with the stock ``lerobot-train --policy.type=sigma``;
+4. **evaluate** it closed-loop in robosuite (``sigma-eval``), seeds disjoint from the training seeds;
+5. **visualise**: a Rerun recording of a dataset episode and of the policy's virtual views and heatmaps on a
+   failed and a successful rollout (``sigma-viz``; open them with ``rerun <file>.rrd``).
+
+``--quick`` (about 2 minutes; used by the tests) shrinks every stage. Outputs go under ``--output_dir``; an
+existing run directory is replaced, so a demo always shows a fresh, complete run.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import shutil
+import subprocess
+import sys
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import draccus
+
+os.environ.setdefault("HF_HUB_OFFLINE", "1")
+
+
+@dataclass
+class DemoConfig:
+    """Options of the demo (``make demo ARGS='--quick true'``)."""
+
+    output_dir: Path = Path("outputs/demo")
+    # A ~2 minute smoke version of every stage (what the tests run).
+    quick: bool = False
+    # Tasks collected and evaluated ("lift", "stack", ...; see sigma_data.tasks).
+    tasks: list[str] = field(default_factory=lambda: ["lift", "stack"])
+    # Seeds collected per variation, and evaluation episodes per variation.
+    episodes: int = 8
+    eval_episodes: int = 4
+    # Training steps and batch size of the small policy.
+    steps: int = 1500
+    batch_size: int = 8
+    cameras: list[str] = field(
+        default_factory=lambda: ["agentview", "frontview", "birdview", "robot0_eye_in_hand"]
+    )
+    image_size: int = 64
+    workers: int = 2
+
+    def __post_init__(self) -> None:
+        if self.quick:
+            self.tasks = ["lift"]
+            self.episodes, self.eval_episodes = 2, 1
+            self.steps, self.batch_size = 4, 2
+            self.cameras = ["agentview", "robot0_eye_in_hand"]
+            self.image_size = 32
+
+
+@dataclass
+class StageTimes:
+    seconds: dict[str, float] = field(default_factory=dict)
+
+    def run(self, name: str, fn, *args, **kwargs):
+        print(f"\n=== {name} ===", flush=True)
+        start = time.perf_counter()
+        out = fn(*args, **kwargs)
+        self.seconds[name] = time.perf_counter() - start
+        return out
+
+
+def collect_stage(cfg: DemoConfig) -> dict[str, Path]:
+    from sigma_data.collect import CollectConfig, collect
+
+    summary = collect(
+        CollectConfig(
+            tasks=",".join(cfg.tasks),
+            episodes=cfg.episodes,
+            output_dir=cfg.output_dir / "data",
+            repo_id="local/sigma_demo",
+            cameras=",".join(cfg.cameras),
+            height=cfg.image_size,
+            width=cfg.image_size,
+            workers=cfg.workers,
+            shard_size=max(1, cfg.episodes // cfg.workers),
+        )
+    )
+    print(summary.line())
+    if summary.kept == 0:
+        raise RuntimeError("the experts produced no successful episode; nothing to train on")
+    return dict(summary.outputs)
+
+
+def validate_stage(outputs: dict[str, Path]) -> dict[str, int]:
+    from sigma_data.validate import ValidateConfig, run_validate
+
+    errors = {}
+    for kind, root in outputs.items():
+        errors[kind] = run_validate(ValidateConfig(root=root))
+    if any(errors.values()):
+        raise RuntimeError(f"dataset validation failed: {errors}")
+    return errors
+
+
+def train_stage(cfg: DemoConfig, keyframe_root: Path) -> Path:
+    out = cfg.output_dir / "train"
+    cmd = [
+        str(Path(sys.executable).with_name("lerobot-train")),
+        "--policy.type=sigma",
+        "--policy.preset=small",
+        "--policy.device=cpu",
+        f"--dataset.root={keyframe_root}",
+        "--dataset.repo_id=local/sigma_demo_keyframe",
+        "--dataset.video_backend=pyav",
+        f"--output_dir={out}",
+        "--job_name=sigma_demo",
+        f"--steps={cfg.steps}",
+        f"--batch_size={cfg.batch_size}",
+        "--num_workers=0",
+        f"--log_freq={max(1, cfg.steps // 20)}",
+        f"--save_freq={cfg.steps}",
+        "--wandb.enable=false",
+        "--seed=0",
+    ]
+    print("$ " + " ".join(cmd), flush=True)
+    subprocess.run(cmd, check=True)
+    ckpt = out / "checkpoints" / "last" / "pretrained_model"
+    if not (ckpt / "config.json").exists():
+        raise RuntimeError(f"lerobot-train finished without a checkpoint at {ckpt}")
+    return ckpt
+
+
+def eval_stage(cfg: DemoConfig, checkpoint: Path, keyframe_root: Path) -> dict:
+    from pipelines.evaluate import EvalConfig, markdown_table, run_eval
+
+    summary = run_eval(
+        EvalConfig(
+            checkpoint=checkpoint,
+            tasks=cfg.tasks,
+            episodes=cfg.eval_episodes,
+            train_dataset=keyframe_root,
+            max_keyframes=8,
+            workers=cfg.workers,
+            output_dir=cfg.output_dir / "eval",
+            rerun=True,
+        )
+    )
+    print(markdown_table(summary))
+    return summary
+
+
+def viz_stage(cfg: DemoConfig, dense_root: Path, eval_summary: dict) -> dict[str, Path]:
+    from pipelines.viz.cli import EpisodeViewConfig, run_episode_view
+
+    paths = {"episode": cfg.output_dir / "viz" / "episode_0.rrd"}
+    print(run_episode_view(EpisodeViewConfig(root=dense_root, episode_index=0, save=paths["episode"])))
+    episodes = eval_summary["episodes"]
+    for label, want in (("rollout_success", True), ("rollout_failure", False)):
+        hit = next((e for e in episodes if e["success"] == want and e.get("recording")), None)
+        if hit:
+            dst = cfg.output_dir / "viz" / f"{label}.rrd"
+            shutil.copyfile(hit["recording"], dst)
+            paths[label] = dst
+    return paths
+
+
+def run_demo(cfg: DemoConfig) -> dict:
+    import sigma_data  # noqa: F401  (MUJOCO_GL before robosuite)
+
+    if cfg.output_dir.exists():
+        shutil.rmtree(cfg.output_dir)
+    cfg.output_dir.mkdir(parents=True)
+    times = StageTimes()
+    outputs = times.run("1/5 collect (scripted experts -> LeRobot datasets)", collect_stage, cfg)
+    times.run("2/5 validate (data contract)", validate_stage, outputs)
+    ckpt = times.run("3/5 train (lerobot-train --policy.type=sigma)", train_stage, cfg, outputs["keyframe"])
+    summary = times.run("4/5 evaluate (sigma-eval, closed loop)", eval_stage, cfg, ckpt, outputs["keyframe"])
+    recordings = times.run("5/5 visualise (Rerun recordings)", viz_stage, cfg, outputs["dense"], summary)
+    report = {
+        "datasets": {k: str(v) for k, v in outputs.items()},
+        "checkpoint": str(ckpt),
+        "eval": str(cfg.output_dir / "eval" / "results.md"),
+        "recordings": {k: str(v) for k, v in recordings.items()},
+        "stage_seconds": times.seconds,
+        "success": {f"{v['task']}:{v['variation']}": v["success_rate"] for v in summary["variations"]},
+    }
+    (cfg.output_dir / "demo.json").write_text(json.dumps(report, indent=2))
+    print_report(cfg, report, summary)
+    return report
+
+
+def print_report(cfg: DemoConfig, report: dict, summary: dict) -> None:
+    print("\n| task | variation | train episodes/variation | eval episodes | success |")
+    print("|---|---|---|---|---|")
+    for v in summary["variations"]:
+        print(
+            f"| {v['task']} | {v['variation']} | {cfg.episodes} | {v['episodes']} "
+            f"| {v['successes']}/{v['episodes']} |"
+        )
+    print("\nwrote:")
+    for name, path in [
+        *report["datasets"].items(),
+        ("checkpoint", report["checkpoint"]),
+        ("eval", report["eval"]),
+    ]:
+        print(f"  {name:<16} {path}")
+    for name, path in report["recordings"].items():
+        print(f"  {name:<16} {path}   (rerun {path})")
+    total = sum(report["stage_seconds"].values())
+    train_s = report["stage_seconds"].get("3/5 train (lerobot-train --policy.type=sigma)", 0.0)
+    print(
+        f"\ndemo: {len(summary['variations'])} variations, train {train_s:.0f} s, "
+        f"mean success {100 * summary['mean_success']:.0f}%, total {total / 60:.1f} min -> {cfg.output_dir}"
+    )
+
+
+def main(argv: list[str] | None = None) -> int:
+    cfg = draccus.parse(DemoConfig, args=sys.argv[1:] if argv is None else argv)
+    run_demo(cfg)
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

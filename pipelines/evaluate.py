@@ -1,0 +1,391 @@
+"""``sigma-eval``: closed-loop evaluation of a sigma checkpoint on the robosuite task suite.
+
+Each episode resets a task variation with a seed, then asks the policy for one 9-D keyframe per step and lets
+the :class:`~sigma_data.control.KeyframeExecutor` drive the robot there (``sigma_data.sim_env``), until the
+task's success check passes or ``max_keyframes`` keyframes were taken. The observation goes through the same
+LeRobot path as ``lerobot-eval`` (``preprocess_observation`` → the checkpoint's saved pre-processor →
+``select_action`` → post-processor), so numbers agree with it.
+
+Honest numbers: evaluation seeds start at ``seed_start`` (100000 by default) and, when ``--train_dataset`` is
+given, are checked against the seeds recorded in its ``meta/sigma.json`` (overlap is an error). Every rate is
+reported with its episode count, its seeds and a Wilson 95% interval. Episodes run in ``workers`` processes,
+each with its own policy copy and environments.
+
+Example::
+
+    sigma-eval --checkpoint outputs/train/checkpoints/last/pretrained_model \\
+        --tasks '[lift, stack]' --episodes 10 --workers 2 --output_dir outputs/eval
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+import math
+import multiprocessing as mp
+import os
+import sys
+import time
+from collections import defaultdict
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+from typing import Any
+
+import draccus
+from tqdm import tqdm
+
+logger = logging.getLogger(__name__)
+
+
+@dataclass
+class EvalConfig:
+    """Options of ``sigma-eval``."""
+
+    # A `pretrained_model` directory saved by lerobot-train (config.json, model.safetensors, processors).
+    checkpoint: Path | None = None
+    # Tasks ("lift"), single variations ("stack:green_on_red"), or "all" for the whole registered suite.
+    tasks: list[str] = field(default_factory=lambda: ["lift"])
+    # Episodes per variation.
+    episodes: int = 10
+    # First evaluation seed; episode k of a variation uses seed_start + k.
+    seed_start: int = 100_000
+    # The training dataset, to prove evaluation seeds are disjoint from its collection seeds (optional).
+    train_dataset: Path | None = None
+    # Keyframes the policy may take per episode.
+    max_keyframes: int = 10
+    # Parallel worker processes (each holds a policy copy and its environments).
+    workers: int = 2
+    device: str = "cpu"
+    # Where results (results.json, results.md) and recordings go.
+    output_dir: Path = Path("outputs/eval")
+    # Save a Rerun recording (.rrd) of every rollout: virtual views, heatmaps, predictions per keyframe.
+    rerun: bool = False
+
+
+@dataclass(frozen=True)
+class Job:
+    task: str
+    variation: str
+    seed: int
+
+
+@dataclass
+class EpisodeResult:
+    task: str
+    variation: str
+    seed: int
+    success: bool
+    keyframes: int
+    control_steps: int
+    seconds: float
+    recording: str | None = None
+    error: str | None = None
+
+
+def wilson_interval(successes: int, n: int, z: float = 1.96) -> tuple[float, float]:
+    """Wilson score 95% interval of a binomial rate (sound for small n and rates near 0 or 1)."""
+    if n == 0:
+        return (0.0, 1.0)
+    p = successes / n
+    denom = 1 + z * z / n
+    centre = (p + z * z / (2 * n)) / denom
+    half = z * math.sqrt(p * (1 - p) / n + z * z / (4 * n * n)) / denom
+    return (max(0.0, centre - half), min(1.0, centre + half))
+
+
+def expand_tasks(specs: list[str]) -> list[tuple[str, str]]:
+    """``["lift", "stack:green_on_red"]`` or ``["all"]`` -> [(task, variation), ...] (errors name unknowns)."""
+    from sigma_data.tasks.registry import TASKS, get_task, get_variation
+
+    if specs == ["all"]:
+        specs = list(TASKS)
+    out: list[tuple[str, str]] = []
+    for spec in specs:
+        name, _, variation = spec.partition(":")
+        task = get_task(name)
+        names = [get_variation(task, variation).name] if variation else list(task.variation_names)
+        out += [(task.name, v) for v in names if (task.name, v) not in out]
+    return out
+
+
+def training_seeds(train_dataset: Path) -> set[int]:
+    """Collection seeds recorded in a sigma dataset's ``meta/sigma.json`` (per-episode ``seed`` fields)."""
+    from sigma_data.writers import read_sidecar
+
+    episodes = read_sidecar(Path(train_dataset)).get("episodes", [])
+    return {int(e["seed"]) for e in episodes if e.get("seed") is not None}
+
+
+def plan_jobs(cfg: EvalConfig) -> list[Job]:
+    pairs = expand_tasks(cfg.tasks)
+    seeds = list(range(cfg.seed_start, cfg.seed_start + cfg.episodes))
+    if cfg.train_dataset is not None:
+        overlap = sorted(set(seeds) & training_seeds(cfg.train_dataset))
+        if overlap:
+            raise ValueError(
+                f"evaluation seeds {overlap[:5]}... were used to collect {cfg.train_dataset}; "
+                f"choose another --seed_start"
+            )
+    # Interleave variations so partial results stay balanced and workers share the load evenly.
+    return [Job(t, v, s) for s in seeds for t, v in pairs]
+
+
+class _Worker:
+    """One process: a policy copy, its processors, and a cached environment per variation."""
+
+    def __init__(self, cfg: EvalConfig):
+        import torch
+        from lerobot.policies.factory import make_pre_post_processors
+
+        import sigma_data.lerobot_env  # noqa: F401  (registers the env type, as the plugin shim does)
+        from sigma_policy.modeling_sigma import SigmaPolicy
+
+        torch.set_num_threads(max(1, (os.cpu_count() or 1) // max(1, cfg.workers)))
+        self.cfg = cfg
+        self.policy = SigmaPolicy.from_pretrained(str(cfg.checkpoint))
+        self.policy.config.device = cfg.device
+        self.policy.to(cfg.device).eval()
+        self.pre, self.post = make_pre_post_processors(
+            self.policy.config,
+            pretrained_path=str(cfg.checkpoint),
+            preprocessor_overrides={"device_processor": {"device": cfg.device}},
+        )
+        self.cameras = tuple(self.policy.config.camera_names())
+        self.image_size = self._image_size()
+        self.envs: dict[str, Any] = {}
+
+    def _image_size(self) -> int:
+        feature = self.policy.config.input_features[f"observation.images.{self.cameras[0]}"]
+        return int(feature.shape[-1])
+
+    def env(self, task: str, variation: str):
+        from sigma_data.sim_env import SigmaRobosuiteEnv
+
+        key = f"{task}:{variation}"
+        if key not in self.envs:
+            self.envs[key] = SigmaRobosuiteEnv(
+                key,
+                cameras=self.cameras,
+                image_size=self.image_size,
+                depth_unit=self.policy.config.depth_unit,
+            )
+        return self.envs[key]
+
+    def act(self, obs: dict, instruction: str):
+        import numpy as np
+        import torch
+        from lerobot.envs.utils import preprocess_observation
+
+        batch = preprocess_observation({k: _batched(v) for k, v in obs.items()})
+        batch["task"] = [instruction]
+        with torch.inference_mode():
+            action = self.policy.select_action(self.pre(batch))
+        return np.asarray(self.post(action).cpu().numpy()[0], dtype=np.float64)
+
+    def run(self, job: Job) -> EpisodeResult:
+        env = self.env(job.task, job.variation)
+        start = time.perf_counter()
+        rec = None
+        recording = None
+        if self.cfg.rerun:
+            rec, recording = self._open_recording(job)
+        obs, _ = env.reset(seed=job.seed)
+        self.policy.reset()
+        success, steps, k = False, 0, 0
+        try:
+            for k in range(1, self.cfg.max_keyframes + 1):
+                action = self.act(obs, env.task_description)
+                if rec is not None:
+                    self._log_step(rec, obs, action, env.task_description, k)
+                obs, _, terminated, _, info = env.step(action)
+                steps += info["control_steps"]
+                success = bool(info["is_success"])
+                if terminated:
+                    break
+        except Exception as exc:  # a bad action or a simulator error fails this episode, not the run
+            logger.exception("episode %s failed", job)
+            return EpisodeResult(
+                job.task,
+                job.variation,
+                job.seed,
+                False,
+                k,
+                steps,
+                time.perf_counter() - start,
+                recording,
+                repr(exc),
+            )
+        finally:
+            if rec is not None:
+                rec.flush()
+                rec.disconnect()
+        return EpisodeResult(
+            job.task, job.variation, job.seed, success, k, steps, time.perf_counter() - start, recording
+        )
+
+    def _open_recording(self, job: Job):
+        from pipelines.viz.blueprints import policy_blueprint
+        from pipelines.viz.cli import ViewerDelivery, open_recording
+        from sigma_policy.renderer import VIEW_NAMES
+
+        path = self.cfg.output_dir / "rollouts" / f"{job.task}_{job.variation}_seed{job.seed}.rrd"
+        rec = open_recording(
+            f"sigma-eval/{job.task}/{job.variation}/{job.seed}",
+            ViewerDelivery(save=path),
+            policy_blueprint(list(VIEW_NAMES)),
+        )
+        return rec, str(path)
+
+    def _log_step(self, rec, obs: dict, action, instruction: str, step: int) -> None:
+        import numpy as np
+
+        from pipelines.viz.policy import log_policy_frame
+        from sigma_data.cameras import backproject
+        from sigma_data.sim_env import DEPTH_SCALE
+
+        pred = self.policy.last_prediction
+        if pred is None:
+            return
+        clouds, colours = [], []
+        for cam in self.cameras:
+            depth = obs[f"images.{cam}_depth"][0] / DEPTH_SCALE[self.policy.config.depth_unit]
+            pts = backproject(depth, obs[f"camera.{cam}.intrinsics"], obs[f"camera.{cam}.extrinsics"])
+            clouds.append(pts.reshape(-1, 3))
+            colours.append(obs["pixels"][cam].reshape(-1, 3))
+        log_policy_frame(
+            rec,
+            pred.views[0].float().cpu().numpy(),
+            pred.heatmaps[0].float().cpu().numpy(),
+            action,
+            None,
+            np.concatenate(clouds),
+            np.concatenate(colours),
+            getattr(pred, "rotation_probs", None),
+            getattr(pred, "gripper_probs", None),
+            getattr(pred, "collision_probs", None),
+            instruction,
+            step=step,
+        )
+
+
+def _batched(value):
+    import numpy as np
+
+    if isinstance(value, dict):
+        return {k: _batched(v) for k, v in value.items()}
+    return np.asarray(value)[None]
+
+
+_WORKER: _Worker | None = None
+
+
+def _init_worker(cfg: EvalConfig) -> None:
+    global _WORKER
+    logging.basicConfig(level=logging.WARNING)
+    _WORKER = _Worker(cfg)
+
+
+def _run_job(job: Job) -> EpisodeResult:
+    assert _WORKER is not None
+    return _WORKER.run(job)
+
+
+def summarise(results: list[EpisodeResult], cfg: EvalConfig) -> dict:
+    """Per-variation success with Wilson 95% intervals, plus the mean over variations."""
+    groups: dict[tuple[str, str], list[EpisodeResult]] = defaultdict(list)
+    for r in results:
+        groups[(r.task, r.variation)].append(r)
+    rows = []
+    for (task, variation), rs in sorted(groups.items()):
+        n, s = len(rs), sum(r.success for r in rs)
+        lo, hi = wilson_interval(s, n)
+        rows.append(
+            {
+                "task": task,
+                "variation": variation,
+                "episodes": n,
+                "successes": s,
+                "success_rate": s / n,
+                "ci95": [lo, hi],
+                "mean_keyframes": sum(r.keyframes for r in rs) / n,
+                "seeds": sorted(r.seed for r in rs),
+                "errors": sum(r.error is not None for r in rs),
+            }
+        )
+    mean = sum(r["success_rate"] for r in rows) / len(rows) if rows else 0.0
+    return {
+        "checkpoint": str(cfg.checkpoint),
+        "config": {k: str(v) if isinstance(v, Path) else v for k, v in asdict(cfg).items()},
+        "variations": rows,
+        "mean_success": mean,
+        "episodes": [asdict(r) for r in results],
+    }
+
+
+def markdown_table(summary: dict) -> str:
+    lines = [
+        "| task | variation | success | 95% CI | episodes | mean keyframes | seeds |",
+        "|---|---|---|---|---|---|---|",
+    ]
+    for r in summary["variations"]:
+        seeds = r["seeds"]
+        seed_txt = f"{seeds[0]}–{seeds[-1]}" if seeds else "-"
+        lines.append(
+            f"| {r['task']} | {r['variation']} | {r['successes']}/{r['episodes']} ({100 * r['success_rate']:.0f}%) "
+            f"| {100 * r['ci95'][0]:.0f}–{100 * r['ci95'][1]:.0f}% | {r['episodes']} | {r['mean_keyframes']:.1f} "
+            f"| {seed_txt} |"
+        )
+    lines.append(f"| **mean** | | **{100 * summary['mean_success']:.1f}%** | | | | |")
+    return "\n".join(lines)
+
+
+def run_eval(cfg: EvalConfig) -> dict:
+    """Evaluate and write ``results.json`` / ``results.md`` under ``cfg.output_dir``; return the summary."""
+    if cfg.checkpoint is None or not (Path(cfg.checkpoint) / "config.json").exists():
+        raise FileNotFoundError(f"--checkpoint must be a pretrained_model directory, got {cfg.checkpoint}")
+    if cfg.episodes < 1 or cfg.max_keyframes < 1 or cfg.workers < 1:
+        raise ValueError("--episodes, --max_keyframes and --workers must be >= 1")
+    jobs = plan_jobs(cfg)
+    cfg.output_dir = Path(cfg.output_dir)
+    cfg.output_dir.mkdir(parents=True, exist_ok=True)
+    start = time.perf_counter()
+    results: list[EpisodeResult] = []
+    bar = tqdm(total=len(jobs), desc="sigma-eval", unit="episode")
+    workers = min(cfg.workers, len(jobs))
+    if workers == 1:
+        _init_worker(cfg)
+        for job in jobs:
+            results.append(_run_job(job))
+            bar.update()
+    else:
+        with mp.get_context("spawn").Pool(workers, initializer=_init_worker, initargs=(cfg,)) as pool:
+            for result in pool.imap_unordered(_run_job, jobs):
+                results.append(result)
+                bar.update()
+    bar.close()
+    summary = summarise(results, cfg)
+    summary["seconds"] = time.perf_counter() - start
+    (cfg.output_dir / "results.json").write_text(json.dumps(summary, indent=2))
+    (cfg.output_dir / "results.md").write_text(markdown_table(summary) + "\n")
+    return summary
+
+
+def main(argv: list[str] | None = None) -> int:
+    os.environ.setdefault("HF_HUB_OFFLINE", "1")
+    import sigma_data  # noqa: F401  (MUJOCO_GL before robosuite)
+
+    cfg = draccus.parse(EvalConfig, args=sys.argv[1:] if argv is None else argv)
+    summary = run_eval(cfg)
+    print(markdown_table(summary))
+    n = len(summary["episodes"])
+    wins = sum(e["success"] for e in summary["episodes"])
+    print(
+        f"sigma-eval: {wins}/{n} episodes succeeded over {len(summary['variations'])} variations "
+        f"(mean {100 * summary['mean_success']:.1f}%) in {summary['seconds']:.0f} s; "
+        f"results in {cfg.output_dir}/results.md"
+    )
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
