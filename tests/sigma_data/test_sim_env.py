@@ -29,7 +29,7 @@ def expert_keyframes(task_name: str, variation: str, seed: int) -> np.ndarray:
 
 @pytest.fixture(scope="module")
 def lift_env():
-    env = SigmaRobosuiteEnv("lift", cameras=CAMS, image_size=48)
+    env = SigmaRobosuiteEnv("lift", cameras=CAMS, image_size=48, depth_unit="m")
     yield env
     env.close()
 
@@ -69,11 +69,13 @@ def test_bad_actions_and_names_are_clear_errors(lift_env):
         parse_task("stack:blue_on_red")
 
 
-def test_variations_round_robin_over_seeds():
+def test_variations_round_robin_over_seeds_and_depth_defaults_to_lerobot_mm():
     env = SigmaRobosuiteEnv("stack", cameras=("agentview",), image_size=32)
     try:
         names = {env.reset(seed=s)[1]["variation"] for s in range(2)}
         assert names == {"red_on_green", "green_on_red"}
+        obs, _ = env.reset(seed=0)
+        assert 300 < np.median(obs["images.agentview_depth"]) < 3000  # millimetres, like LeRobotDataset
     finally:
         env.close()
 
