@@ -1,5 +1,26 @@
-"""sigma_policy: the Σ-agent policy as a LeRobot policy plugin (``--policy.type=sigma``)."""
+"""sigma_policy: the Σ-agent policy as a LeRobot policy plugin (``--policy.type=sigma``).
+
+Importing the package registers the policy type ``sigma``, the optimiser ``lamb`` and the processor step
+``sigma_calibration_batch`` (needed to reload saved pre-processors). ``SigmaPolicy`` is imported on first use.
+"""
 
 from sigma_policy.configuration_sigma import SigmaConfig
+from sigma_policy.lamb import Lamb, LambConfig
+from sigma_policy.processor_sigma import SigmaCalibrationBatchStep, make_sigma_pre_post_processors
 
-__all__ = ["SigmaConfig"]
+__all__ = [
+    "Lamb",
+    "LambConfig",
+    "SigmaCalibrationBatchStep",
+    "SigmaConfig",
+    "SigmaPolicy",
+    "make_sigma_pre_post_processors",
+]
+
+
+def __getattr__(name: str):
+    if name == "SigmaPolicy":
+        from sigma_policy.modeling_sigma import SigmaPolicy
+
+        return SigmaPolicy
+    raise AttributeError(f"module 'sigma_policy' has no attribute {name!r}")

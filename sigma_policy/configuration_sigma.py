@@ -1,20 +1,186 @@
-"""Configuration of the Σ-agent policy (registered with LeRobot as ``--policy.type=sigma``).
+"""Configuration of the Σ-agent policy, registered with LeRobot as ``--policy.type=sigma``.
 
-Placeholder of the foundation issue: the full paper/small configurations arrive with the network.
+Presets (``--policy.preset=paper|small``). Every architecture / schedule field left unset (``None``) is filled
+from the preset in ``__post_init__``; a field given explicitly (CLI or ``config.json``) always wins.
+
+| field | paper (model_spec §3.1, §8) | small (2 CPU cores, minutes) |
+|---|---|---|
+| img_size / patch_size | 220 / 11 (20x20 tokens per view) | 64 / 8 (8x8 tokens per view) |
+| im_channels / final_dim | 64 / 64 | 16 / 16 |
+| attn_dim, heads x dim_head | 512, 8 x 64 | 128, 4 x 32 |
+| view / query / fusion layers | 2 / 2 / 4 | 1 / 1 / 2 |
+| decoder_kernel | 11 | 3 |
+| attn_dropout | 0.1 | 0.0 |
+| optimizer_lr, warm-up, decay steps | 9.6e-4, 2000, 25000 | 3e-3, 20, 2000 |
+
+``paper`` has 38.26 M parameters with the contrastive heads and 36.03 M at inference (with 77 x 512 CLIP tokens;
+the default MiniLM text encoder's 384-d tokens make it 0.34 % smaller).
+
+Paper-vs-code discrepancies (model_spec §12), each a field; default and reason:
+
+1. Queries — ``num_queries=1``, ``query_attention="self"`` (released code: one query token, full self-attention
+   over [query, image tokens]). Paper: 5 queries with cross-attention (``num_queries=5, query_attention="cross"``).
+   Default = code, because the published success rates and the 38.26 M parameter count come from it.
+2. Fusion — paper and code agree (self-attention over language, query and image tokens after a Linear); no field.
+3. λ — ``bc_lambda=0.5``: total = λ·BC + (1−λ)·CL (paper). The code sums BC + CL (= 2x this, to which LAMB's
+   trust ratio is invariant). ``use_contrastive=false`` (or ``bc_lambda=1``) is the RVT-style baseline.
+4. Negatives — ``mask_same_instruction=True``: in the state↔language term, batch entries with the *same
+   instruction* are removed from the negatives (paper: "negatives from other tasks"; their language feature is
+   identical to the positive, so they are false negatives). The code masks nothing (``False``). The goal term
+   never masks: two states with the same instruction still have different goals.
+5. Goal — the next keyframe (code and paper's main text): fixed by the keyframe dataset via
+   ``observation_delta_indices=[0, 1]``; no field.
+6. Proprio — ``use_proprio=False`` (Σ code). ``True`` adds one token from ``observation.state``
+   [gripper_open, finger_q1, finger_q2] to the fusion sequence (a sigma variant, not RVT-1's channel concat).
+7. Temperature — learnable, ``logit_scale_init=log(1/0.07)``, ``logit_scale_max=None`` (code: unclamped;
+   CLIP clamps the scale at 100).
+8. Projection heads — ``projection_activation=True`` (code: Linear + LeakyReLU before L2 normalisation);
+   ``False`` = the paper's purely linear projection.
+9. Hyper-parameters — paper: batch 96, lr 9.6e-4, 25K steps, 2K warm-up (``paper`` preset). The code's
+   yaml uses 1e-4 x global batch. Scale ``optimizer_lr`` with the global batch size if it differs from 96.
+10./11. Replay start frames and the collision label are properties of the dataset, not the policy.
+12. Eval centring — ``place_with_mean_at_eval=False``: evaluation uses the same fixed scene box as training
+    (RVT-2 behaviour). ``True`` reproduces the RVT-1/Σ eval hack (centre and scale on the cloud's bounding box).
+13./14. Heatmap pixel convention — sigma's renderer and heatmap modules use exact pixel alignment
+    (pixel j covers [j, j+1)) for both labels and back-projection, so the RVT half-pixel offset and the
+    zero-weighted last grid slice do not exist here; no field.
+15./17. CLIP weights / precision — replaced by ``text_encoder`` (frozen, cached per instruction); no field.
+16. ``detach_heatmap_for_features=True`` (code): no gradient from the rotation/gripper/collision losses flows
+    into the translation logits through the heatmap-weighted features.
+
+Inputs per camera ``<cam>`` in ``cameras`` (all cameras that have them when ``cameras`` is empty):
+``observation.images.<cam>`` (RGB in [0,1]), ``observation.images.<cam>_depth`` (depth, unit ``depth_unit``),
+``observation.camera.<cam>.intrinsics`` (3x3) and ``.extrinsics`` (4x4, camera-to-world, OpenCV axes); the
+instruction arrives as ``task``. Output: ``action`` (9,) = [x, y, z, qx, qy, qz, qw, gripper_open,
+ignore_collision], an absolute world-frame next-keyframe pose (quaternion xyzw, w >= 0).
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+import math
+from dataclasses import dataclass, field, fields
+from typing import Any
 
 from lerobot.configs.policies import PreTrainedConfig
-from lerobot.configs.types import NormalizationMode
-from lerobot.optim.optimizers import AdamConfig
+from lerobot.configs.types import FeatureType, NormalizationMode
+from lerobot.optim.schedulers import CosineDecayWithWarmupSchedulerConfig
+
+from sigma_policy.lamb import LambConfig
+from sigma_policy.network import NetworkConfig
+
+PRESETS: dict[str, dict[str, Any]] = {
+    "paper": {
+        "img_size": 220,
+        "patch_size": 11,
+        "im_channels": 64,
+        "final_dim": 64,
+        "attn_dim": 512,
+        "attn_heads": 8,
+        "attn_dim_head": 64,
+        "num_view_layers": 2,
+        "num_query_layers": 2,
+        "num_fusion_layers": 4,
+        "decoder_kernel": 11,
+        "attn_dropout": 0.1,
+        "optimizer_lr": 9.6e-4,
+        "scheduler_warmup_steps": 2000,
+        "scheduler_decay_steps": 25000,
+    },
+    "small": {
+        "img_size": 64,
+        "patch_size": 8,
+        "im_channels": 16,
+        "final_dim": 16,
+        "attn_dim": 128,
+        "attn_heads": 4,
+        "attn_dim_head": 32,
+        "num_view_layers": 1,
+        "num_query_layers": 1,
+        "num_fusion_layers": 2,
+        "decoder_kernel": 3,
+        "attn_dropout": 0.0,
+        "optimizer_lr": 3e-3,
+        "scheduler_warmup_steps": 20,
+        "scheduler_decay_steps": 2000,
+    },
+}
+
+ACTION_DIM = 9
+CALIBRATION_PREFIX = "observation.camera."
+IMAGE_PREFIX = "observation.images."
+DEPTH_SUFFIX = "_depth"
 
 
 @PreTrainedConfig.register_subclass("sigma")
 @dataclass
 class SigmaConfig(PreTrainedConfig):
+    """Σ-agent policy configuration (see the module docstring for presets and paper-vs-code choices).
+
+    Units: ``scene_bounds`` metres (xmin, ymin, zmin, xmax, ymax, zmax) in the world frame;
+    ``aug_translation_range`` metres; ``aug_yaw_range_deg`` degrees; ``gt_heatmap_sigma`` pixels.
+    """
+
+    preset: str = "paper"
+
+    # ---- architecture (None = from preset)
+    img_size: int | None = None
+    patch_size: int | None = None
+    im_channels: int | None = None
+    final_dim: int | None = None
+    attn_dim: int | None = None
+    attn_heads: int | None = None
+    attn_dim_head: int | None = None
+    num_view_layers: int | None = None
+    num_query_layers: int | None = None
+    num_fusion_layers: int | None = None
+    decoder_kernel: int | None = None
+    attn_dropout: float | None = None
+    num_rotation_bins: int = 72
+    render_radius_px: float = 1.32
+
+    # ---- paper-vs-code choices (module docstring)
+    num_queries: int = 1
+    query_attention: str = "self"
+    bc_lambda: float = 0.5
+    mask_same_instruction: bool = True
+    use_proprio: bool = False
+    logit_scale_init: float = math.log(1 / 0.07)
+    logit_scale_max: float | None = None
+    projection_activation: bool = True
+    place_with_mean_at_eval: bool = False
+    detach_heatmap_for_features: bool = True
+
+    # ---- contrastive IL
+    use_contrastive: bool = True
+
+    # ---- inputs
+    cameras: list[str] = field(default_factory=list)
+    depth_unit: str = (
+        "mm"  # LeRobotDataset's default depth_output_unit; "m" with --dataset.depth_output_unit=m
+    )
+    scene_bounds: list[float] = field(default_factory=lambda: [-0.4, -0.55, 0.75, 0.6, 0.5, 1.75])
+    text_encoder: str = "minilm"
+    text_encoder_path: str | None = None
+
+    # ---- augmentation and labels (training only)
+    aug_translation_range: float = 0.125
+    aug_yaw_range_deg: float = 45.0
+    image_noise: float = 0.1
+    gt_heatmap_sigma: float = 1.5
+
+    # ---- optimisation (None = from preset); LAMB + linear warm-up + cosine decay to lr / 100
+    optimizer_lr: float | None = None
+    optimizer_betas: tuple[float, float] = (0.9, 0.999)
+    optimizer_eps: float = 1e-6
+    optimizer_weight_decay: float = 1e-6
+    optimizer_grad_clip_norm: float = 0.0  # Σ does not clip; LeRobot skips clipping when <= 0
+    scheduler_warmup_steps: int | None = None
+    scheduler_decay_steps: int | None = None
+
+    # ---- precision
+    use_bf16_autocast: bool = True  # bf16 autocast of the network on CUDA devices that support it
+
+    # ---- LeRobot plumbing
     normalization_mapping: dict[str, NormalizationMode] = field(
         default_factory=lambda: {
             "VISUAL": NormalizationMode.IDENTITY,
@@ -22,15 +188,39 @@ class SigmaConfig(PreTrainedConfig):
             "ACTION": NormalizationMode.IDENTITY,
         }
     )
+    # Observation keys the normaliser may touch; camera calibration and depth are never normalised.
+    normalize_observation_keys: list[str] = field(default_factory=lambda: ["observation.state"])
     push_to_hub: bool = False
-    optimizer_lr: float = 1e-4
 
-    def __post_init__(self):
+    def __post_init__(self) -> None:
         super().__post_init__()
+        if self.preset not in PRESETS:
+            raise ValueError(f"policy.preset must be one of {sorted(PRESETS)}, got {self.preset!r}")
+        for name, value in PRESETS[self.preset].items():
+            if getattr(self, name) is None:
+                setattr(self, name, value)
+        if len(self.scene_bounds) != 6 or any(
+            hi <= lo for lo, hi in zip(self.scene_bounds[:3], self.scene_bounds[3:], strict=True)
+        ):
+            raise ValueError(
+                f"policy.scene_bounds must be (xmin, ymin, zmin, xmax, ymax, zmax), got {self.scene_bounds}"
+            )
+        if self.depth_unit not in ("m", "mm"):
+            raise ValueError(f"policy.depth_unit must be 'm' or 'mm', got {self.depth_unit!r}")
+        if not 0.0 < self.bc_lambda <= 1.0:
+            raise ValueError(f"policy.bc_lambda must be in (0, 1], got {self.bc_lambda}")
+        self.network_config()  # validates the architecture numbers early
+
+    # ------------------------------------------------------------------ LeRobot hooks
+    @property
+    def drop_n_last_frames(self) -> int:
+        """The last keyframe of an episode is a goal only, never a training sample."""
+        return 1
 
     @property
     def observation_delta_indices(self) -> list[int]:
-        return [0, 1]
+        """Frame i and its goal, the next keyframe i + 1 (only i is used without the contrastive loss)."""
+        return [0, 1] if self.use_contrastive else [0]
 
     @property
     def action_delta_indices(self) -> None:
@@ -40,11 +230,69 @@ class SigmaConfig(PreTrainedConfig):
     def reward_delta_indices(self) -> None:
         return None
 
-    def get_optimizer_preset(self) -> AdamConfig:
-        return AdamConfig(lr=self.optimizer_lr)
+    def get_optimizer_preset(self) -> LambConfig:
+        return LambConfig(
+            lr=self.optimizer_lr,
+            betas=self.optimizer_betas,
+            eps=self.optimizer_eps,
+            weight_decay=self.optimizer_weight_decay,
+            grad_clip_norm=self.optimizer_grad_clip_norm,
+        )
 
-    def get_scheduler_preset(self) -> None:
-        return None
+    def get_scheduler_preset(self) -> CosineDecayWithWarmupSchedulerConfig:
+        return CosineDecayWithWarmupSchedulerConfig(
+            num_warmup_steps=self.scheduler_warmup_steps,
+            num_decay_steps=self.scheduler_decay_steps,
+            peak_lr=self.optimizer_lr,
+            decay_lr=self.optimizer_lr / 100,
+        )
 
     def validate_features(self) -> None:
-        return None
+        """Check that every used camera has RGB, depth, intrinsics and extrinsics, and that the action is 9-D."""
+        cams = self.camera_names()
+        if not cams:
+            raise ValueError(
+                "sigma needs at least one camera with 'observation.images.<cam>', "
+                "'observation.images.<cam>_depth', 'observation.camera.<cam>.intrinsics' and "
+                f"'.extrinsics' among the input features; got {sorted(self.input_features or {})}"
+            )
+        feats = self.input_features or {}
+        for cam in cams:
+            for key in self.camera_keys(cam).values():
+                if key not in feats:
+                    raise ValueError(f"camera '{cam}': input feature '{key}' is missing from the dataset")
+        if self.action_feature is not None and tuple(self.action_feature.shape) != (ACTION_DIM,):
+            raise ValueError(
+                f"sigma predicts a 9-D keyframe action, but feature 'action' has shape {self.action_feature.shape}"
+            )
+
+    # ------------------------------------------------------------------ helpers
+    @staticmethod
+    def camera_keys(cam: str) -> dict[str, str]:
+        return {
+            "rgb": f"{IMAGE_PREFIX}{cam}",
+            "depth": f"{IMAGE_PREFIX}{cam}{DEPTH_SUFFIX}",
+            "intrinsics": f"{CALIBRATION_PREFIX}{cam}.intrinsics",
+            "extrinsics": f"{CALIBRATION_PREFIX}{cam}.extrinsics",
+        }
+
+    def camera_names(self) -> list[str]:
+        """The cameras the policy fuses: ``cameras`` if set, else every RGB camera with a depth feature."""
+        if self.cameras:
+            return list(self.cameras)
+        feats = self.input_features or {}
+        return sorted(
+            key.removeprefix(IMAGE_PREFIX)
+            for key, ft in feats.items()
+            if ft.type is FeatureType.VISUAL
+            and key.startswith(IMAGE_PREFIX)
+            and not key.endswith(DEPTH_SUFFIX)
+            and f"{key}{DEPTH_SUFFIX}" in feats
+        )
+
+    def network_config(self) -> NetworkConfig:
+        """Architecture numbers for ``SigmaNetwork`` (language dimensions come from the text encoder)."""
+        names = {f.name for f in fields(NetworkConfig)}
+        values = {k: getattr(self, k) for k in names if hasattr(self, k) and getattr(self, k) is not None}
+        values["proprio_dim"] = 3
+        return NetworkConfig(**values)

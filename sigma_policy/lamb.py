@@ -1,0 +1,96 @@
+"""LAMB as used by Σ-agent / RVT (model_spec §8), and its LeRobot ``OptimizerConfig`` (``--optimizer.type=lamb``).
+
+Per parameter p with gradient g (no bias correction):
+
+    m <- beta1 m + (1 - beta1) g
+    v <- beta2 v + (1 - beta2) g^2
+    r  = m / (sqrt(v) + eps) + weight_decay * p
+    trust = clamp(||p||, 0, 10) / ||r||     (1 if either norm is 0)
+    p <- p - lr * trust * r
+
+Weight decay applies to every parameter (biases, norms, positional encodings, the logit scale). All state values
+are tensors (``step`` included) so that LeRobot's safetensors checkpointing can save them.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass
+
+import torch
+from lerobot.optim.optimizers import OptimizerConfig, OptimizerParams
+
+TRUST_CLAMP = 10.0
+
+
+class Lamb(torch.optim.Optimizer):
+    """Layer-wise adaptive moments (You et al., 2019) without bias correction, trust-ratio clamp 10."""
+
+    def __init__(
+        self,
+        params: OptimizerParams,
+        lr: float = 1e-3,
+        betas: tuple[float, float] = (0.9, 0.999),
+        eps: float = 1e-6,
+        weight_decay: float = 0.0,
+    ):
+        if lr < 0.0:
+            raise ValueError(f"Lamb: invalid learning rate {lr}")
+        if not (0.0 <= betas[0] < 1.0 and 0.0 <= betas[1] < 1.0):
+            raise ValueError(f"Lamb: invalid betas {betas}")
+        if eps <= 0.0 or weight_decay < 0.0:
+            raise ValueError(f"Lamb: invalid eps {eps} or weight_decay {weight_decay}")
+        super().__init__(params, {"lr": lr, "betas": tuple(betas), "eps": eps, "weight_decay": weight_decay})
+
+    @torch.no_grad()
+    def step(self, closure: Callable[[], float] | None = None) -> float | None:
+        loss = None
+        if closure is not None:
+            with torch.enable_grad():
+                loss = closure()
+        for group in self.param_groups:
+            beta1, beta2 = group["betas"]
+            for p in group["params"]:
+                if p.grad is None:
+                    continue
+                grad = p.grad
+                if grad.is_sparse:
+                    raise RuntimeError("Lamb does not support sparse gradients")
+                state = self.state[p]
+                if not state:
+                    state["step"] = torch.zeros((), dtype=torch.float32)
+                    state["exp_avg"] = torch.zeros_like(p, memory_format=torch.preserve_format)
+                    state["exp_avg_sq"] = torch.zeros_like(p, memory_format=torch.preserve_format)
+                state["step"] += 1
+                exp_avg, exp_avg_sq = state["exp_avg"], state["exp_avg_sq"]
+                exp_avg.mul_(beta1).add_(grad, alpha=1 - beta1)
+                exp_avg_sq.mul_(beta2).addcmul_(grad, grad, value=1 - beta2)
+
+                update = exp_avg / exp_avg_sq.sqrt().add_(group["eps"])
+                if group["weight_decay"] != 0:
+                    update.add_(p, alpha=group["weight_decay"])
+
+                weight_norm = p.norm().clamp(0, TRUST_CLAMP)
+                update_norm = update.norm()
+                trust = torch.where(
+                    (weight_norm > 0) & (update_norm > 0),
+                    weight_norm / update_norm,
+                    torch.ones_like(weight_norm),
+                )
+                p.add_(update * trust, alpha=-group["lr"])
+        return loss
+
+
+@OptimizerConfig.register_subclass("lamb")
+@dataclass
+class LambConfig(OptimizerConfig):
+    """``--optimizer.type=lamb``; defaults are Σ-agent's (betas 0.9/0.999, eps 1e-6, weight decay 1e-6)."""
+
+    lr: float = 9.6e-4
+    betas: tuple[float, float] = (0.9, 0.999)
+    eps: float = 1e-6
+    weight_decay: float = 1e-6
+    grad_clip_norm: float = 0.0
+
+    def build(self, params: OptimizerParams) -> Lamb:
+        return Lamb(params, lr=self.lr, betas=self.betas, eps=self.eps, weight_decay=self.weight_decay)

@@ -1,0 +1,360 @@
+"""``SigmaPolicy``: the Σ-agent keyframe policy as a LeRobot ``PreTrainedPolicy`` (``--policy.type=sigma``).
+
+Per sample and frame (current frame i, and in training its goal, keyframe i+1, from
+``observation_delta_indices=[0, 1]``):
+
+1. Each camera's metric depth + intrinsics + camera-to-world extrinsics -> world points, coloured by its RGB;
+   all cameras are concatenated into one cloud (B, N, 3).
+2. Training only: SE(3) augmentation (±``aug_translation_range`` m, ±``aug_yaw_range_deg`` yaw about the target
+   position; the goal gets its own draw, pivoting on the goal frame's end-effector position).
+3. Crop to ``scene_bounds``, map to the canonical cube [-1, 1]^3, render 5 orthographic virtual views
+   (B, 5, 10, img_size, img_size); training adds the uniform render noise of model_spec §2.3 on channels 0-6.
+4. The network (``network.py``) with frozen, cached text-encoder tokens of ``task``.
+
+Losses (model_spec §6): translation = soft-target cross-entropy of each view's heatmap against a Gaussian
+(sigma ``gt_heatmap_sigma`` px) at the projected target; 3 x ``num_rotation_bins`` Euler-bin CE; gripper CE;
+collision CE; BC = their sum. Total = ``bc_lambda`` · BC + (1 − ``bc_lambda``) · contrastive, or BC alone with
+``use_contrastive=False``.
+
+Action (9,): ``[x, y, z, qx, qy, qz, qw, gripper_open, ignore_collision]`` in world metres, quaternion xyzw with
+w >= 0, the two flags in {0, 1}. ``predict`` also returns the rendered views, per-view heatmaps and the 3D point
+for visualisation; ``select_action`` keeps the latest in ``last_prediction``.
+"""
+
+from __future__ import annotations
+
+from contextlib import nullcontext
+from dataclasses import dataclass
+from typing import Any
+
+import torch
+import torch.nn.functional as F
+from lerobot.policies.pretrained import PreTrainedPolicy
+from torch import Tensor
+
+from sigma_policy.augmentation import se3_augment
+from sigma_policy.configuration_sigma import SigmaConfig
+from sigma_policy.contrastive import contrastive_losses, instruction_ids
+from sigma_policy.heatmap import gaussian_heatmaps, heatmap_to_cube_point
+from sigma_policy.network import NetworkOutput, SigmaNetwork
+from sigma_policy.pointcloud import bounds_mask, cube_to_world, depth_to_world_points, world_to_cube
+from sigma_policy.renderer import VirtualViewRenderer
+from sigma_policy.rotation import bins_to_quat, quat_to_bins
+from sigma_policy.text_encoder import make_text_encoder
+
+NOISY_CHANNELS = 7  # xyz, rgb, depth get the render noise; the 3 pixel-location channels do not
+MM_PER_M = 1000.0
+
+
+@dataclass
+class SigmaPrediction:
+    """One inference step, for acting and for visualisation (all tensors on the policy device)."""
+
+    action: Tensor  # (B, 9) world-frame next-keyframe action
+    views: Tensor  # (B, V, 10, H, W) rendered virtual views (channels: xyz, rgb, depth, view id, row, col)
+    heatmaps: Tensor  # (B, V, H, W) per-view translation probabilities (each view sums to 1)
+    point_cube: Tensor  # (B, 3) predicted translation in cube coordinates
+    point_world: Tensor  # (B, 3) predicted translation in world metres
+    rotation_bins: Tensor  # (B, 3) argmax Euler bins
+    bounds: Tensor  # (B, 6) world box that was mapped to the cube
+
+
+@dataclass
+class _Cloud:
+    points: Tensor  # (B, N, 3) world metres; NaN where depth was invalid
+    colors: Tensor  # (B, N, 3) RGB in [0, 1]
+
+
+class SigmaPolicy(PreTrainedPolicy):
+    """Σ-agent: RVT-style multi-view transformer with an MVQ-Former and contrastive IL (see module docstring)."""
+
+    config_class = SigmaConfig
+    name = "sigma"
+
+    def __init__(
+        self, config: SigmaConfig, dataset_stats: dict | None = None, dataset_meta: Any = None, **kwargs
+    ):
+        super().__init__(config)
+        del dataset_stats, dataset_meta, kwargs  # no statistics needed: the scene box is the normalisation
+        config.validate_features()
+        self.config: SigmaConfig = config
+        self.cameras = config.camera_names()
+        self._depth_checked = False
+        # Frozen and cached per instruction; kept outside the module tree so it is neither saved nor trained.
+        self.__dict__["text_encoder"] = make_text_encoder(config.text_encoder, config.text_encoder_path)
+        self._lang_cache: dict[str, tuple[Tensor, Tensor]] = {}
+        self.network = SigmaNetwork(
+            config.network_config(), self.text_encoder.token_dim, self.text_encoder.sentence_dim
+        )
+        self.renderer = VirtualViewRenderer(img_size=config.img_size, radius_px=config.render_radius_px)
+        self.register_buffer(
+            "scene_bounds", torch.tensor(config.scene_bounds, dtype=torch.float32), persistent=False
+        )
+        self.last_prediction: SigmaPrediction | None = None
+
+    # ------------------------------------------------------------------ LeRobot API
+    def get_optim_params(self):
+        return self.parameters()
+
+    def reset(self) -> None:
+        self.last_prediction = None
+
+    @torch.no_grad()
+    def select_action(self, batch: dict[str, Any], **kwargs) -> Tensor:
+        """(B, 9) next-keyframe action for a batch of single observations (no time dimension)."""
+        self.last_prediction = self.predict(batch)
+        return self.last_prediction.action
+
+    @torch.no_grad()
+    def predict_action_chunk(self, batch: dict[str, Any], **kwargs) -> Tensor:
+        return self.predict(batch).action.unsqueeze(1)
+
+    def forward(self, batch: dict[str, Any], reduction: str = "mean") -> tuple[Tensor, dict[str, float]]:
+        """Training loss on a batch whose ``observation.*`` tensors carry a time axis [current, goal].
+
+        ``reduction="none"`` returns per-sample losses (B,): each sample's BC loss plus the (batch-level)
+        contrastive loss, weighted by ``bc_lambda``.
+        """
+        cfg = self.config
+        action = batch["action"].float()
+        if action.ndim != 2 or action.shape[1] != 9:
+            raise ValueError(f"batch['action'] must be (B, 9), got {tuple(action.shape)}")
+        tasks = self._tasks(batch, action.shape[0])
+
+        cloud = self._cloud(batch, t=0)
+        points, pos, quat, _ = se3_augment(
+            cloud.points,
+            action[:, :3],
+            action[:, 3:7],
+            self.scene_bounds,
+            xyz_range=cfg.aug_translation_range,
+            yaw_range_deg=cfg.aug_yaw_range_deg,
+        )
+        views = self._add_render_noise(self._render(points, cloud.colors, self.scene_bounds))
+
+        goal_views = None
+        if cfg.use_contrastive:
+            goal = self._cloud(batch, t=1)
+            state = self._take(batch, "observation.state", t=1, item_ndim=1).float()
+            goal_points, *_ = se3_augment(
+                goal.points,
+                state[:, :3],
+                state[:, 3:7],
+                self.scene_bounds,
+                xyz_range=cfg.aug_translation_range,
+                yaw_range_deg=cfg.aug_yaw_range_deg,
+            )
+            goal_views = self._add_render_noise(self._render(goal_points, goal.colors, self.scene_bounds))
+
+        out = self._run_network(views, tasks, batch, goal_views=goal_views)
+
+        # ---- behaviour cloning (per sample)
+        target_uv = self.renderer.project(world_to_cube(pos[:, None], self.scene_bounds))[:, 0]  # (B, V, 2)
+        target_hm = gaussian_heatmaps(target_uv, cfg.img_size, sigma=cfg.gt_heatmap_sigma)
+        log_p = torch.log_softmax(out.trans.float().flatten(2), dim=-1)
+        trans_loss = -(target_hm.flatten(2) * log_p).sum(-1).mean(-1)  # mean over views
+        rot_bins = quat_to_bins(quat, cfg.num_rotation_bins)  # (B, 3)
+        rot_loss = F.cross_entropy(out.rot_logits.float().transpose(1, 2), rot_bins, reduction="none").sum(-1)
+        grip_loss = F.cross_entropy(out.grip_logits.float(), action[:, 7].round().long(), reduction="none")
+        coll_loss = F.cross_entropy(
+            out.collision_logits.float(), action[:, 8].round().long(), reduction="none"
+        )
+        bc = trans_loss + rot_loss + grip_loss + coll_loss
+
+        info = {
+            "trans_loss": trans_loss.mean().item(),
+            "rot_loss": rot_loss.mean().item(),
+            "grip_loss": grip_loss.mean().item(),
+            "collision_loss": coll_loss.mean().item(),
+            "bc_loss": bc.mean().item(),
+        }
+        per_sample = bc
+        if cfg.use_contrastive:
+            group = instruction_ids(tasks, device=bc.device) if cfg.mask_same_instruction else None
+            cl = contrastive_losses(
+                out.state_feat,
+                out.lang_feat,
+                out.fused_feat,
+                out.goal_feat,
+                out.logit_scale,
+                instruction_group=group,
+                logit_scale_max=cfg.logit_scale_max,
+            )
+            per_sample = cfg.bc_lambda * bc + (1 - cfg.bc_lambda) * cl.total
+            info |= {
+                "contrastive_sl_loss": cl.state_language.item(),
+                "contrastive_goal_loss": cl.goal.item(),
+                "contrastive_loss": cl.total.item(),
+                "logit_scale": out.logit_scale.item(),
+            }
+        if reduction == "none":
+            return per_sample, info
+        if reduction != "mean":
+            raise ValueError(f"reduction must be 'mean' or 'none', got {reduction!r}")
+        return per_sample.mean(), info
+
+    # ------------------------------------------------------------------ inference
+    @torch.no_grad()
+    def predict(self, batch: dict[str, Any]) -> SigmaPrediction:
+        """Deterministic prediction (no augmentation, no render noise) with everything needed to visualise it."""
+        cfg = self.config
+        cloud = self._cloud(batch, t=0)
+        b = cloud.points.shape[0]
+        bounds = self.scene_bounds.expand(b, 6)
+        if cfg.place_with_mean_at_eval:
+            bounds = self._cloud_box(cloud.points, bounds)
+        views = self._render(cloud.points, cloud.colors, bounds)
+        out = self._run_network(views, self._tasks(batch, b), batch)
+        trans = out.trans.float()
+        point_cube = heatmap_to_cube_point(trans, cfg.img_size)
+        point_world = cube_to_world(point_cube, bounds)
+        rot_bins = out.rot_logits.argmax(-1)
+        quat = bins_to_quat(rot_bins, cfg.num_rotation_bins)
+        grip = out.grip_logits.argmax(-1, keepdim=True).float()
+        coll = out.collision_logits.argmax(-1, keepdim=True).float()
+        action = torch.cat([point_world, quat.to(point_world.dtype), grip, coll], dim=-1)
+        return SigmaPrediction(
+            action=action,
+            views=views,
+            heatmaps=torch.softmax(trans.flatten(2), -1).reshape(trans.shape),
+            point_cube=point_cube,
+            point_world=point_world,
+            rotation_bins=rot_bins,
+            bounds=bounds,
+        )
+
+    # ------------------------------------------------------------------ internals
+    def _check_depth_unit(self, depth_m: Tensor, key: str) -> None:
+        """Fail fast (once) when depth is clearly not in ``depth_unit`` (e.g. millimetres read as metres)."""
+        valid = depth_m[torch.isfinite(depth_m) & (depth_m > 0)]
+        if valid.numel() == 0:
+            raise ValueError(f"depth feature '{key}' has no valid (finite, > 0) pixel in this batch")
+        median = float(valid.median())
+        if not 0.02 < median < 50.0:
+            raise ValueError(
+                f"depth feature '{key}' has median {median:.4g} m when read as policy.depth_unit="
+                f"'{self.config.depth_unit}'; set --policy.depth_unit to the unit the dataset returns "
+                "(LeRobot's --dataset.depth_output_unit, default 'mm')"
+            )
+        self._depth_checked = True
+
+    @property
+    def _device(self) -> torch.device:
+        return self.network.pos_encoding.device
+
+    @staticmethod
+    def _take(batch: dict[str, Any], key: str, t: int, item_ndim: int) -> Tensor:
+        """Frame ``t`` of ``batch[key]``: (B, T, *item) -> (B, *item); (B, *item) is frame 0 (inference)."""
+        if key not in batch:
+            raise KeyError(
+                f"sigma: batch has no '{key}' (keys: {sorted(k for k in batch if k.startswith('obs'))})"
+            )
+        x = batch[key]
+        if x.ndim == item_ndim + 2:
+            return x[:, t]
+        if x.ndim == item_ndim + 1 and t == 0:
+            return x
+        raise ValueError(
+            f"sigma: '{key}' has shape {tuple(x.shape)}; expected (B, {'T, ' if t else ''}...) with a "
+            f"{item_ndim}-D item" + ("; the goal frame needs observation_delta_indices=[0, 1]" if t else "")
+        )
+
+    @staticmethod
+    def _tasks(batch: dict[str, Any], b: int) -> list[str]:
+        if "task" not in batch:
+            raise KeyError("sigma: batch has no 'task' (the language instruction)")
+        tasks = batch["task"]
+        tasks = [tasks] if isinstance(tasks, str) else list(tasks)
+        if len(tasks) != b:
+            raise ValueError(f"sigma: {len(tasks)} task strings for a batch of {b}")
+        return tasks
+
+    def _cloud(self, batch: dict[str, Any], t: int) -> _Cloud:
+        """Fused world-frame point cloud of all cameras at frame ``t``."""
+        scale = 1 / MM_PER_M if self.config.depth_unit == "mm" else 1.0
+        points, colors = [], []
+        for cam in self.cameras:
+            keys = self.config.camera_keys(cam)
+            rgb = self._take(batch, keys["rgb"], t, 3).float()
+            depth = self._take(batch, keys["depth"], t, 3).float()[:, 0] * scale
+            K = self._take(batch, keys["intrinsics"], t, 2).float()
+            E = self._take(batch, keys["extrinsics"], t, 2).float()
+            if not self._depth_checked:
+                self._check_depth_unit(depth, keys["depth"])
+            if rgb.shape[-2:] != depth.shape[-2:]:
+                raise ValueError(
+                    f"camera '{cam}': RGB {tuple(rgb.shape)} and depth {tuple(depth.shape)} differ"
+                )
+            points.append(depth_to_world_points(depth, K, E).flatten(1, 2))
+            colors.append(rgb.flatten(2).transpose(1, 2))
+        return _Cloud(points=torch.cat(points, 1), colors=torch.cat(colors, 1).clamp(0, 1))
+
+    @staticmethod
+    def _cloud_box(points: Tensor, bounds: Tensor) -> Tensor:
+        """RVT-1 eval centring: per-sample axis-aligned box of the in-bounds points (B, 6)."""
+        mask = bounds_mask(points, bounds)
+        inf = torch.tensor(float("inf"), device=points.device)
+        lo = torch.where(mask[..., None], points, inf).amin(1)
+        hi = torch.where(mask[..., None], points, -inf).amax(1)
+        if not torch.isfinite(lo).all():
+            raise ValueError("place_with_mean_at_eval: a sample has no points inside scene_bounds")
+        return torch.cat([lo, hi], -1)
+
+    def _render(self, points: Tensor, colors: Tensor, bounds: Tensor) -> Tensor:
+        """Crop to ``bounds`` ((6,) shared or (B, 6) per sample), map to the cube and render (B, V, 10, H, W)."""
+        mask = bounds_mask(points, bounds)
+        # Keep only in-bounds points (padded to the largest count in the batch): rendering cost scales with N.
+        keep = int(mask.sum(1).max())
+        order = torch.argsort(mask.to(torch.int8), dim=1, descending=True, stable=True)[:, :keep]
+        points = points.gather(1, order[..., None].expand(-1, -1, 3))
+        colors = colors.gather(1, order[..., None].expand(-1, -1, colors.shape[-1]))
+        mask = mask.gather(1, order)
+        cube = world_to_cube(points, bounds)
+        cube = torch.where(mask[..., None], cube, torch.zeros_like(cube))
+        with torch.no_grad():
+            return self.renderer(cube, colors, mask)
+
+    def _add_render_noise(self, views: Tensor) -> Tensor:
+        """Uniform noise U(-s, s), s = image_noise · U(0, 1) per batch, on channels 0-6, then clamp to [-1, 1]."""
+        if self.config.image_noise <= 0:
+            return views
+        stdv = self.config.image_noise * torch.rand((), device=views.device)
+        noisy = views[:, :, :NOISY_CHANNELS]
+        noisy = (noisy + (torch.rand_like(noisy) * 2 - 1) * stdv).clamp(-1, 1)
+        return torch.cat([noisy, views[:, :, NOISY_CHANNELS:]], dim=2)
+
+    def _language(self, tasks: list[str]) -> tuple[Tensor, Tensor]:
+        """(B, L, D_tok) tokens and (B, D_sent) sentence features, cached on the policy device per instruction."""
+        missing = [s for s in dict.fromkeys(tasks) if s not in self._lang_cache]
+        if missing:
+            feats = self.text_encoder.encode(missing)
+            for i, s in enumerate(missing):
+                self._lang_cache[s] = (
+                    feats.tokens[i].detach().float().to(self._device),
+                    feats.sentence[i].detach().float().to(self._device),
+                )
+        tokens = torch.stack([self._lang_cache[s][0] for s in tasks])
+        sentence = torch.stack([self._lang_cache[s][1] for s in tasks])
+        return tokens, sentence
+
+    def _run_network(
+        self, views: Tensor, tasks: list[str], batch: dict[str, Any], goal_views: Tensor | None = None
+    ) -> NetworkOutput:
+        tokens, sentence = self._language(tasks)
+        proprio = None
+        if self.config.use_proprio:
+            proprio = self._take(batch, "observation.state", 0, 1)[:, 7:10].float()
+        device = views.device
+        autocast = (
+            torch.autocast("cuda", dtype=torch.bfloat16)
+            if self.config.use_bf16_autocast and device.type == "cuda" and torch.cuda.is_bf16_supported()
+            else nullcontext()
+        )
+        with autocast:
+            return self.network(
+                views,
+                tokens,
+                lang_sentence=sentence if goal_views is not None else None,
+                goal_images=goal_views,
+                proprio=proprio,
+            )

@@ -1,0 +1,372 @@
+"""The Σ-agent network: an RVT-style multi-view transformer with an MVQ-Former query stage.
+
+Shapes (B = batch, V = virtual views, C_in = rendered channels (10), H = W = ``img_size``,
+T = ``img_size // patch_size`` patches per side, D = ``attn_dim``, L = language tokens):
+
+1. ``input_preprocess`` 1x1 conv C_in -> ``im_channels`` on every view -> ``d0`` (BV, c, H, W) (kept as a skip).
+2. ``patchify`` conv k = stride = ``patch_size`` -> (BV, c, T, T) -> V*T*T tokens + learnable positional encoding
+   -> Linear c -> D.
+3. Intra-view encoder (``num_view_layers``): self-attention inside each view (sequence T*T).
+4. MVQ-Former (``num_query_layers``): ``num_queries`` learnable query tokens (zero-init, c -> D) with either full
+   self-attention over [queries, all image tokens] (released code) or cross-attention queries -> image tokens
+   (paper text). Query output -> ``img_feat`` (state feature phi(s_t) for the contrastive loss).
+5. Fusion (``num_fusion_layers``): Linear D -> D on [language, (proprio), queries, image tokens], then full
+   self-attention. Query output -> ``fused_feat`` (delta(s_t, l)).
+6. Decoder: image tokens -> Linear D -> c -> per view conv k at T x T, bilinear x patch_size, conv k, concat ``d0``,
+   conv 3x3 -> ``u`` (BV, ``final_dim``, H, W) -> conv 3x3 -> translation logits (B, V, H, W).
+7. Heads: [max over tokens (c*V, channel-major), heatmap-weighted sum of ``u`` (V*final_dim, view-major)] -> MLP
+   -> 3 x ``num_rotation_bins`` Euler-bin logits, 2 gripper logits, 2 collision logits.
+8. Goal branch (training, contrastive): the goal render shares steps 1-3 (own positional encoding), tokens are
+   mean-pooled per view, concatenated over views and projected -> ``goal_feat`` (phi(g)).
+
+Attention is ``F.scaled_dot_product_attention`` without masks (flash / memory-efficient kernels on GPU).
+With the paper numbers (``NetworkConfig()`` and 77 x 512 CLIP tokens) the module has 38,259,614 parameters, of
+which 2,227,201 belong to the contrastive heads (``SigmaNetwork.contrastive``) and are unused at inference.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import Literal
+
+import torch
+import torch.nn.functional as F
+from torch import Tensor, nn
+
+LRELU_SLOPE = 0.02
+
+
+@dataclass(frozen=True)
+class NetworkConfig:
+    """Architecture numbers; the defaults are the paper / released-code configuration (model_spec §3.1)."""
+
+    num_views: int = 5
+    in_channels: int = 10
+    img_size: int = 220
+    patch_size: int = 11
+    im_channels: int = 64
+    attn_dim: int = 512
+    attn_heads: int = 8
+    attn_dim_head: int = 64
+    attn_dropout: float = 0.1
+    num_view_layers: int = 2
+    num_query_layers: int = 2
+    num_fusion_layers: int = 4
+    num_queries: int = 1
+    query_attention: Literal["self", "cross"] = "self"
+    decoder_kernel: int = 11
+    final_dim: int = 64
+    head_hidden_dims: tuple[int, int] = (128, 64)
+    num_rotation_bins: int = 72
+    use_contrastive: bool = True
+    projection_activation: bool = True
+    detach_heatmap_for_features: bool = True
+    use_proprio: bool = False
+    proprio_dim: int = 3
+    logit_scale_init: float = math.log(1 / 0.07)
+
+    def __post_init__(self) -> None:
+        if self.img_size % self.patch_size:
+            raise ValueError(f"img_size {self.img_size} must be a multiple of patch_size {self.patch_size}")
+        if self.query_attention not in ("self", "cross"):
+            raise ValueError(f"query_attention must be 'self' or 'cross', got {self.query_attention!r}")
+        if self.num_queries < 1:
+            raise ValueError(f"num_queries must be >= 1, got {self.num_queries}")
+        if self.im_channels % 4 or self.attn_dim % 4:
+            raise ValueError("im_channels and attn_dim must be multiples of 4 (GroupNorm(4, .))")
+
+    @property
+    def tokens_per_side(self) -> int:
+        return self.img_size // self.patch_size
+
+
+def _init_for_activation(module: nn.Conv2d | nn.Linear, activation: bool) -> None:
+    if activation:
+        nn.init.kaiming_uniform_(module.weight, a=LRELU_SLOPE, nonlinearity="leaky_relu")
+    else:
+        nn.init.xavier_uniform_(module.weight, gain=1.0)
+    if module.bias is not None:
+        nn.init.zeros_(module.bias)
+
+
+class ConvBlock(nn.Sequential):
+    """Conv2d (replicate padding, ``k // 2``) + optional GroupNorm(4) + optional LeakyReLU(0.02)."""
+
+    def __init__(
+        self, c_in: int, c_out: int, kernel: int, stride: int = 1, norm: bool = False, act: bool = True
+    ):
+        conv = nn.Conv2d(c_in, c_out, kernel, stride, padding=0 if stride > 1 else kernel // 2)
+        if stride == 1:
+            conv.padding_mode = "replicate"
+        _init_for_activation(conv, act)
+        layers: list[nn.Module] = [conv]
+        if norm:
+            layers.append(nn.GroupNorm(4, c_out))
+        if act:
+            layers.append(nn.LeakyReLU(LRELU_SLOPE))
+        super().__init__(*layers)
+
+
+class DenseBlock(nn.Module):
+    """Linear + optional GroupNorm(4) over features (tokens are folded into the batch) + optional LeakyReLU."""
+
+    def __init__(self, d_in: int, d_out: int, norm: bool = False, act: bool = True):
+        super().__init__()
+        self.linear = nn.Linear(d_in, d_out)
+        _init_for_activation(self.linear, act)
+        self.norm = nn.GroupNorm(4, d_out) if norm else None
+        self.act = nn.LeakyReLU(LRELU_SLOPE) if act else None
+
+    def forward(self, x: Tensor) -> Tensor:
+        x = self.linear(x)
+        if self.norm is not None:
+            shape = x.shape
+            x = self.norm(x.reshape(-1, shape[-1])).reshape(shape)
+        return self.act(x) if self.act is not None else x
+
+
+class Attention(nn.Module):
+    """Multi-head attention via SDPA: q (no bias), kv (no bias), out (bias); dropout on attention weights."""
+
+    def __init__(self, dim: int, heads: int, dim_head: int, dropout: float):
+        super().__init__()
+        inner = heads * dim_head
+        self.heads, self.dropout = heads, dropout
+        self.to_q = nn.Linear(dim, inner, bias=False)
+        self.to_kv = nn.Linear(dim, 2 * inner, bias=False)
+        self.to_out = nn.Linear(inner, dim)
+
+    def forward(self, x: Tensor, context: Tensor | None = None) -> Tensor:
+        context = x if context is None else context
+        q = self.to_q(x)
+        k, v = self.to_kv(context).chunk(2, dim=-1)
+        b, n, _ = q.shape
+        q, k, v = (t.reshape(b, t.shape[1], self.heads, -1).transpose(1, 2) for t in (q, k, v))
+        out = F.scaled_dot_product_attention(q, k, v, dropout_p=self.dropout if self.training else 0.0)
+        return self.to_out(out.transpose(1, 2).reshape(b, n, -1))
+
+
+class GEGLUFeedForward(nn.Module):
+    """Linear dim -> 8 dim, split into (a, b), a * GELU(b), Linear 4 dim -> dim."""
+
+    def __init__(self, dim: int, mult: int = 4):
+        super().__init__()
+        self.proj_in = nn.Linear(dim, dim * mult * 2)
+        self.proj_out = nn.Linear(dim * mult, dim)
+
+    def forward(self, x: Tensor) -> Tensor:
+        a, gate = self.proj_in(x).chunk(2, dim=-1)
+        return self.proj_out(a * F.gelu(gate))
+
+
+class TransformerLayer(nn.Module):
+    """Pre-LN layer: ``x + Attn(LN(x)[, LN(ctx)])`` then ``x + FF(LN(x))``; ``cross`` adds a context LayerNorm."""
+
+    def __init__(self, dim: int, heads: int, dim_head: int, dropout: float, cross: bool = False):
+        super().__init__()
+        self.norm_attn = nn.LayerNorm(dim)
+        self.norm_context = nn.LayerNorm(dim) if cross else None
+        self.attn = Attention(dim, heads, dim_head, dropout)
+        self.norm_ff = nn.LayerNorm(dim)
+        self.ff = GEGLUFeedForward(dim)
+
+    def forward(self, x: Tensor, context: Tensor | None = None) -> Tensor:
+        if self.norm_context is not None:
+            if context is None:
+                raise ValueError("a cross-attention layer needs a context")
+            context = self.norm_context(context)
+        x = x + self.attn(self.norm_attn(x), context)
+        return x + self.ff(self.norm_ff(x))
+
+
+def _stack(cfg: NetworkConfig, n: int, cross: bool = False) -> nn.ModuleList:
+    return nn.ModuleList(
+        TransformerLayer(cfg.attn_dim, cfg.attn_heads, cfg.attn_dim_head, cfg.attn_dropout, cross)
+        for _ in range(n)
+    )
+
+
+class ContrastiveHeads(nn.Module):
+    """Everything only the contrastive loss needs (dropped from the inference parameter count)."""
+
+    def __init__(self, cfg: NetworkConfig, lang_sentence_dim: int):
+        super().__init__()
+        d, n_tok = cfg.attn_dim, cfg.num_views * cfg.tokens_per_side**2
+        act = cfg.projection_activation
+        self.goal_pos_encoding = nn.Parameter(torch.randn(1, n_tok, cfg.im_channels))
+        self.state_proj = DenseBlock(d, d, act=act)  # phi(s_t): query after the MVQ-Former
+        self.fused_proj = DenseBlock(d, d, act=act)  # delta(s_t, l): query after fusion
+        self.lang_proj = DenseBlock(lang_sentence_dim, d, act=act)  # psi(l)
+        self.goal_proj = DenseBlock(cfg.num_views * d, d, act=act)  # phi(g)
+        self.logit_scale = nn.Parameter(torch.tensor(cfg.logit_scale_init))
+
+
+@dataclass
+class NetworkOutput:
+    """Raw network outputs. Logits are unnormalised; features are not L2-normalised."""
+
+    trans: Tensor  # (B, V, H, W) translation heatmap logits (softmax per view)
+    rot_logits: Tensor  # (B, 3, num_rotation_bins) Euler x, y, z bins
+    grip_logits: Tensor  # (B, 2), class 1 = open
+    collision_logits: Tensor  # (B, 2), class 1 = ignore collisions
+    state_feat: Tensor | None = None  # (B, D) phi(s_t)
+    fused_feat: Tensor | None = None  # (B, D) delta(s_t, l)
+    lang_feat: Tensor | None = None  # (B, D) psi(l)
+    goal_feat: Tensor | None = None  # (B, D) phi(g)
+    logit_scale: Tensor | None = None  # scalar, exp of the learnable log-scale (1 / temperature)
+
+
+class SigmaNetwork(nn.Module):
+    """Σ-agent MVQ-Former network. See the module docstring for the data flow."""
+
+    def __init__(self, cfg: NetworkConfig, lang_token_dim: int, lang_sentence_dim: int):
+        super().__init__()
+        self.cfg = cfg
+        c, d, t = cfg.im_channels, cfg.attn_dim, cfg.tokens_per_side
+        n_tok = cfg.num_views * t * t
+
+        self.input_preprocess = ConvBlock(cfg.in_channels, c, kernel=1)
+        self.patchify = ConvBlock(c, c, kernel=cfg.patch_size, stride=cfg.patch_size, norm=True)
+        self.pos_encoding = nn.Parameter(torch.randn(1, n_tok, c))
+        self.fc_bef_attn = DenseBlock(c, d, act=False)
+        self.view_layers = _stack(cfg, cfg.num_view_layers)
+
+        self.query_tokens = nn.Parameter(torch.zeros(1, cfg.num_queries, c))
+        self.fc_query = DenseBlock(c, d, act=False)
+        self.query_layers = _stack(cfg, cfg.num_query_layers, cross=cfg.query_attention == "cross")
+
+        self.lang_preprocess = DenseBlock(lang_token_dim, d, norm=True)
+        self.proprio_preprocess = DenseBlock(cfg.proprio_dim, d) if cfg.use_proprio else None
+        self.fc_bef_fusion = DenseBlock(d, d, act=False)
+        self.fusion_layers = _stack(cfg, cfg.num_fusion_layers)
+        self.fc_aft_attn = DenseBlock(d, c, act=False)
+
+        k = cfg.decoder_kernel
+        self.up_conv0 = ConvBlock(c, c, kernel=k)
+        self.upsample = nn.Upsample(scale_factor=cfg.patch_size, mode="bilinear", align_corners=False)
+        self.up_conv1 = ConvBlock(c, c, kernel=k)
+        self.final = ConvBlock(2 * c, cfg.final_dim, kernel=3)
+        self.trans_decoder = ConvBlock(cfg.final_dim, 1, kernel=3, act=False)
+
+        h1, h2 = cfg.head_hidden_dims
+        self.feat_fc = nn.Sequential(
+            nn.Linear(cfg.num_views * (c + cfg.final_dim), h1),
+            nn.ReLU(),
+            nn.Linear(h1, h2),
+            nn.ReLU(),
+            nn.Linear(h2, 3 * cfg.num_rotation_bins + 4),
+        )
+        self.contrastive = ContrastiveHeads(cfg, lang_sentence_dim) if cfg.use_contrastive else None
+
+    # ------------------------------------------------------------------ helpers
+    def num_parameters(self, inference_only: bool = False) -> int:
+        """Parameter count; ``inference_only`` leaves out the contrastive heads."""
+        total = sum(p.numel() for p in self.parameters())
+        if inference_only and self.contrastive is not None:
+            total -= sum(p.numel() for p in self.contrastive.parameters())
+        return total
+
+    def _encode_views(self, images: Tensor, pos_encoding: Tensor) -> tuple[Tensor, Tensor]:
+        """(B, V, C_in, H, W) -> view-encoded tokens (B, V, T*T, D) and the full-resolution skip d0."""
+        b, v, ch, h, w = images.shape
+        if (v, ch, h) != (self.cfg.num_views, self.cfg.in_channels, self.cfg.img_size) or h != w:
+            raise ValueError(
+                f"expected images (B, {self.cfg.num_views}, {self.cfg.in_channels}, {self.cfg.img_size}, "
+                f"{self.cfg.img_size}), got {tuple(images.shape)}"
+            )
+        d0 = self.input_preprocess(images.reshape(b * v, ch, h, w))
+        patches = self.patchify(d0)  # (BV, c, T, T)
+        c, t = patches.shape[1], patches.shape[-1]
+        tokens = patches.reshape(b, v, c, t * t).transpose(2, 3).reshape(b, v * t * t, c)
+        tokens = self.fc_bef_attn(tokens + pos_encoding).reshape(b * v, t * t, -1)
+        for layer in self.view_layers:
+            tokens = layer(tokens)
+        return tokens.reshape(b, v, t * t, -1), d0
+
+    def encode_goal(self, goal_images: Tensor) -> Tensor:
+        """Goal render (B, V, C_in, H, W) -> phi(g) (B, D): shared encoder, own PE, per-view mean, projection."""
+        if self.contrastive is None:
+            raise RuntimeError("encode_goal needs use_contrastive=True")
+        tokens, _ = self._encode_views(goal_images, self.contrastive.goal_pos_encoding)
+        return self.contrastive.goal_proj(tokens.mean(dim=2).flatten(1))
+
+    # ------------------------------------------------------------------ forward
+    def forward(
+        self,
+        images: Tensor,
+        lang_tokens: Tensor,
+        lang_sentence: Tensor | None = None,
+        goal_images: Tensor | None = None,
+        proprio: Tensor | None = None,
+    ) -> NetworkOutput:
+        """Run the network.
+
+        Args:
+            images: (B, V, C_in, H, W) rendered virtual views of the current state.
+            lang_tokens: (B, L, lang_token_dim) frozen text-encoder token embeddings.
+            lang_sentence: (B, lang_sentence_dim) sentence feature; with ``goal_images`` it enables the
+                contrastive features (training only).
+            goal_images: (B, V, C_in, H, W) rendered goal state (training only).
+            proprio: (B, proprio_dim), only with ``use_proprio``.
+        """
+        cfg = self.cfg
+        b = images.shape[0]
+        view_tokens, d0 = self._encode_views(images, self.pos_encoding)
+        t = cfg.tokens_per_side
+        img = view_tokens.reshape(b, cfg.num_views * t * t, -1)
+
+        query = self.fc_query(self.query_tokens).expand(b, -1, -1)
+        nq = query.shape[1]
+        if cfg.query_attention == "self":
+            seq = torch.cat([query, img], dim=1)
+            for layer in self.query_layers:
+                seq = layer(seq)
+            query, img = seq[:, :nq], seq[:, nq:]
+        else:
+            for layer in self.query_layers:
+                query = layer(query, context=img)
+        state_query = query.mean(dim=1)
+
+        prefix = [self.lang_preprocess(lang_tokens)]
+        if self.proprio_preprocess is not None:
+            if proprio is None:
+                raise ValueError("use_proprio=True needs a proprio tensor (B, proprio_dim)")
+            prefix.append(self.proprio_preprocess(proprio).unsqueeze(1))
+        n_prefix = sum(p.shape[1] for p in prefix)
+        seq = self.fc_bef_fusion(torch.cat([*prefix, query, img], dim=1))
+        for layer in self.fusion_layers:
+            seq = layer(seq)
+        fused_query = seq[:, n_prefix : n_prefix + nq].mean(dim=1)
+        img = seq[:, n_prefix + nq :]
+
+        feat_tokens = self.fc_aft_attn(img)  # (B, V*T*T, c)
+        c = feat_tokens.shape[-1]
+        feat_maps = feat_tokens.reshape(b, cfg.num_views, t, t, c).permute(0, 1, 4, 2, 3)  # (B, V, c, T, T)
+        max_feat = feat_maps.amax(dim=(-2, -1)).transpose(1, 2).flatten(1)  # (B, c*V), channel-major
+
+        x = self.up_conv1(self.upsample(self.up_conv0(feat_maps.reshape(b * cfg.num_views, c, t, t))))
+        u = self.final(torch.cat([x, d0], dim=1))  # (BV, final_dim, H, W)
+        trans = self.trans_decoder(u).reshape(b, cfg.num_views, cfg.img_size, cfg.img_size)
+
+        hm_logits = trans.detach() if cfg.detach_heatmap_for_features else trans
+        hm = torch.softmax(hm_logits.flatten(2).float(), dim=-1).to(u.dtype)  # (B, V, HW)
+        u_flat = u.reshape(b, cfg.num_views, u.shape[1], -1)
+        weighted = torch.einsum("bvn,bvcn->bvc", hm, u_flat).flatten(1)  # (B, V*final_dim), view-major
+
+        head = self.feat_fc(torch.cat([max_feat, weighted], dim=1))
+        nb = cfg.num_rotation_bins
+        out = NetworkOutput(
+            trans=trans,
+            rot_logits=head[:, : 3 * nb].reshape(b, 3, nb),
+            grip_logits=head[:, 3 * nb : 3 * nb + 2],
+            collision_logits=head[:, 3 * nb + 2 : 3 * nb + 4],
+        )
+        if self.contrastive is not None and lang_sentence is not None and goal_images is not None:
+            heads = self.contrastive
+            out.state_feat = heads.state_proj(state_query)
+            out.fused_feat = heads.fused_proj(fused_query)
+            out.lang_feat = heads.lang_proj(lang_sentence)
+            out.goal_feat = self.encode_goal(goal_images)
+            out.logit_scale = heads.logit_scale.exp()
+        return out

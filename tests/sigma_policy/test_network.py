@@ -1,0 +1,134 @@
+"""The Σ-agent network: parameter counts of the paper configuration, shapes, gradient routing, variants."""
+
+from __future__ import annotations
+
+import dataclasses
+
+import pytest
+import torch
+
+from sigma_policy.configuration_sigma import SigmaConfig
+from sigma_policy.network import NetworkConfig, SigmaNetwork
+
+SMALL = NetworkConfig(
+    img_size=32,
+    patch_size=8,
+    im_channels=8,
+    final_dim=8,
+    attn_dim=32,
+    attn_heads=2,
+    attn_dim_head=16,
+    num_view_layers=1,
+    num_query_layers=1,
+    num_fusion_layers=1,
+    decoder_kernel=3,
+    attn_dropout=0.0,
+)
+
+
+def inputs(cfg: NetworkConfig, b: int = 2, lang_len: int = 6, lang_dim: int = 12):
+    g = torch.Generator().manual_seed(0)
+    img = torch.rand(b, cfg.num_views, cfg.in_channels, cfg.img_size, cfg.img_size, generator=g)
+    goal = torch.rand(img.shape, generator=g)
+    return img, torch.randn(b, lang_len, lang_dim, generator=g), torch.randn(b, lang_dim, generator=g), goal
+
+
+def test_paper_parameter_count_matches_the_paper_within_one_percent():
+    # CLIP token / sentence width 512 as in Σ-agent; model_spec §3.4 gives 38,259,614 and 36.03 M.
+    net = SigmaNetwork(NetworkConfig(), lang_token_dim=512, lang_sentence_dim=512)
+    total, inference = net.num_parameters(), net.num_parameters(inference_only=True)
+    assert abs(total - 38.26e6) / 38.26e6 < 0.01, total
+    assert abs(inference - 36.0e6) / 36.0e6 < 0.01, inference
+    assert total == 38_259_614 and inference == 36_032_413
+
+
+def test_paper_preset_with_default_minilm_dimensions_is_within_one_percent():
+    cfg = SigmaConfig(preset="paper", device="cpu")
+    net = SigmaNetwork(cfg.network_config(), lang_token_dim=384, lang_sentence_dim=384)
+    assert abs(net.num_parameters() - 38.26e6) / 38.26e6 < 0.01
+    assert abs(net.num_parameters(inference_only=True) - 36.0e6) / 36.0e6 < 0.01
+
+
+def test_forward_shapes_and_every_parameter_gets_a_gradient():
+    net = SigmaNetwork(SMALL, lang_token_dim=12, lang_sentence_dim=12)
+    img, tok, sent, goal = inputs(SMALL)
+    out = net(img, tok, sent, goal)
+    assert out.trans.shape == (2, 5, 32, 32)
+    assert out.rot_logits.shape == (2, 3, 72)
+    assert out.grip_logits.shape == out.collision_logits.shape == (2, 2)
+    for feat in (out.state_feat, out.fused_feat, out.lang_feat, out.goal_feat):
+        assert feat.shape == (2, 32)
+    loss = (
+        out.trans.logsumexp((-2, -1)).sum()
+        + out.rot_logits.sum()
+        + out.grip_logits.sum()
+        + out.collision_logits.sum()
+        + sum(
+            (f * out.logit_scale).sum()
+            for f in (out.state_feat, out.fused_feat, out.lang_feat, out.goal_feat)
+        )
+    )
+    loss.backward()
+    missing = {n for n, p in net.named_parameters() if p.grad is None or not p.grad.abs().sum() > 0}
+    # The query tokens are zero-initialised (as in Σ-agent), so the first step cannot move the weight that
+    # reads them; the tokens themselves do get a gradient.
+    assert missing == {"fc_query.linear.weight"}, missing
+    assert net.query_tokens.grad.abs().sum() > 0
+
+
+def test_inference_skips_contrastive_features():
+    net = SigmaNetwork(SMALL, 12, 12).eval()
+    img, tok, _, _ = inputs(SMALL)
+    out = net(img, tok)
+    assert out.state_feat is None and out.goal_feat is None and out.logit_scale is None
+
+
+@pytest.mark.parametrize("detach", [True, False])
+def test_heatmap_feature_stop_gradient(detach: bool):
+    cfg = dataclasses.replace(SMALL, detach_heatmap_for_features=detach)
+    net = SigmaNetwork(cfg, 12, 12)
+    img, tok, _, _ = inputs(cfg)
+    net(img, tok).rot_logits.sum().backward()
+    grad = net.trans_decoder[0].weight.grad
+    reached = grad is not None and bool(grad.abs().sum() > 0)
+    assert reached is (not detach)
+
+
+def test_paper_query_variant_and_proprio_token():
+    cfg = dataclasses.replace(SMALL, num_queries=5, query_attention="cross", use_proprio=True)
+    net = SigmaNetwork(cfg, 12, 12)
+    img, tok, sent, goal = inputs(cfg)
+    out = net(img, tok, sent, goal, proprio=torch.rand(2, 3))
+    assert out.fused_feat.shape == (2, 32) and out.trans.shape == (2, 5, 32, 32)
+    with pytest.raises(ValueError, match="proprio"):
+        net(img, tok)
+
+
+def test_rvt_baseline_has_no_contrastive_heads():
+    net = SigmaNetwork(dataclasses.replace(SMALL, use_contrastive=False), 12, 12)
+    assert net.contrastive is None
+    assert net.num_parameters() == net.num_parameters(inference_only=True)
+
+
+def test_bad_image_shape_is_reported():
+    net = SigmaNetwork(SMALL, 12, 12)
+    img, tok, _, _ = inputs(SMALL)
+    with pytest.raises(ValueError, match="expected images"):
+        net(img[:, :3], tok)
+
+
+def test_config_presets_and_overrides():
+    small = SigmaConfig(preset="small", device="cpu")
+    assert (small.img_size, small.attn_dim, small.decoder_kernel) == (64, 128, 3)
+    paper = SigmaConfig(device="cpu")
+    assert (paper.img_size, paper.patch_size, paper.attn_dim, paper.num_fusion_layers) == (220, 11, 512, 4)
+    assert SigmaConfig(preset="small", img_size=48, device="cpu").img_size == 48
+    assert paper.push_to_hub is False and paper.drop_n_last_frames == 1
+    assert paper.observation_delta_indices == [0, 1]
+    assert SigmaConfig(use_contrastive=False, device="cpu").observation_delta_indices == [0]
+    with pytest.raises(ValueError, match="preset"):
+        SigmaConfig(preset="huge", device="cpu")
+    with pytest.raises(ValueError, match="scene_bounds"):
+        SigmaConfig(scene_bounds=[0, 0, 0, 1, -1, 1], device="cpu")
+    with pytest.raises(ValueError, match="multiple of patch_size"):
+        SigmaConfig(preset="small", img_size=60, device="cpu")
