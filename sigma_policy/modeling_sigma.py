@@ -57,6 +57,11 @@ class SigmaPrediction:
     point_world: Tensor  # (B, 3) predicted translation in world metres
     rotation_bins: Tensor  # (B, 3) argmax Euler bins
     bounds: Tensor  # (B, 6) world box that was mapped to the cube
+    rotation_probs: Tensor  # (B, 3, num_rotation_bins) softmax per Euler axis
+    gripper_probs: Tensor  # (B, 2) [closed, open]
+    collision_probs: Tensor  # (B, 2) [avoid, ignore]
+    cloud_points: Tensor  # (B, N, 3) fused world-frame input cloud, metres (NaN where depth was invalid)
+    cloud_colors: Tensor  # (B, N, 3) its RGB in [0, 1]
 
 
 @dataclass
@@ -221,6 +226,11 @@ class SigmaPolicy(PreTrainedPolicy):
             point_world=point_world,
             rotation_bins=rot_bins,
             bounds=bounds,
+            rotation_probs=torch.softmax(out.rot_logits.float(), -1),
+            gripper_probs=torch.softmax(out.grip_logits.float(), -1),
+            collision_probs=torch.softmax(out.collision_logits.float(), -1),
+            cloud_points=cloud.points,
+            cloud_colors=cloud.colors,
         )
 
     # ------------------------------------------------------------------ internals

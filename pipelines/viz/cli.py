@@ -118,6 +118,7 @@ def run_policy_view(cfg: PolicyViewConfig) -> str:
     import torch
     from lerobot.datasets import LeRobotDataset, LeRobotDatasetMetadata
     from lerobot.datasets.factory import resolve_delta_timestamps
+    from lerobot.policies.factory import make_pre_post_processors
     from torch.utils.data import default_collate
 
     from pipelines.viz.policy import DEFAULT_VIEW_NAMES, log_policy_frame, policy_frame_outputs
@@ -148,7 +149,7 @@ def run_policy_view(cfg: PolicyViewConfig) -> str:
         root=cfg.root,
         episodes=[cfg.episode_index],
         delta_timestamps=resolve_delta_timestamps(policy.config, meta),
-        depth_output_unit="m",
+        depth_output_unit=policy.config.depth_unit,  # the unit the policy was trained on
         video_backend="pyav",  # torchcodec cannot load without system FFmpeg; skip its noisy probe
     )
     if not 0 <= cfg.frame_index < len(ds):
@@ -160,10 +161,12 @@ def run_policy_view(cfg: PolicyViewConfig) -> str:
         raise ValueError(
             f"{cfg.root}: row {cfg.frame_index} of episode {cfg.episode_index} is frame {item['frame_index']}"
         )
-    batch = {
-        k: (v.to(cfg.device) if isinstance(v, torch.Tensor) else v)
-        for k, v in default_collate([item]).items()
-    }
+    preprocessor, _ = make_pre_post_processors(
+        policy.config,
+        pretrained_path=str(cfg.checkpoint),
+        preprocessor_overrides={"device_processor": {"device": cfg.device}},
+    )
+    batch = preprocessor(default_collate([item]))
     with torch.no_grad():
         outputs = policy_frame_outputs(policy, batch)
 

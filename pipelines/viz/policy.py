@@ -312,19 +312,39 @@ def _summary_markdown(
 
 
 def policy_frame_outputs(policy: Any, batch: dict[str, Any]) -> dict[str, Any]:
-    """Adapter from a ``SigmaPolicy`` and one dataset batch to the keyword arguments of ``log_policy_frame``.
+    """Run ``SigmaPolicy.predict`` on a pre-processed batch and return ``log_policy_frame``'s keyword arguments
+    for its first sample: the 5 virtual views (V, 10, H, W), per-view heatmaps (V, H, W), the decoded 9-D
+    world-frame prediction, the true next keyframe (``batch["action"]``, when present), the fused input cloud,
+    rotation-bin / gripper / collision probabilities, the instruction, and the true and predicted translation
+    projected into every view (``gt_pixels`` / ``pred_pixels``, (V, 2) as (u, v))."""
+    from sigma_policy.pointcloud import world_to_cube
 
-    Must return a dict with keys ``views`` (V, 10, H, W), ``heatmaps`` (V, H, W), ``pred_action`` (9,),
-    ``gt_action`` (9,) or None, ``cloud_xyz`` (N, 3), ``cloud_rgb`` (N, 3), ``rot_probs`` (3, bins) or None,
-    ``grip_probs`` (2,) or None, ``collision_probs`` (2,) or None, ``instruction`` (str), and optionally
-    ``gt_pixels`` / ``pred_pixels`` (V, 2).
-    """
-    raise NotImplementedError(
-        "pipelines.viz.policy.policy_frame_outputs: sigma_policy/modeling_sigma.py (SigmaPolicy) did not exist when "
-        "the viewer was written, so this adapter is not wired. Wire it here: run the policy's preprocessor on "
-        "`batch`, render the virtual views (V, 10, H, W) of the first sample, run SigmaNetwork and return "
-        "softmax(NetworkOutput.trans) per view as `heatmaps` (V, H, W), softmax of rot_logits (3, bins), "
-        "grip_logits (2,: class 1 = open) and collision_logits (2,: class 1 = ignore), the decoded 9-D world-frame "
-        "prediction as `pred_action`, batch['action'][0] (the next keyframe) as `gt_action`, the world point "
-        "cloud and its rgb that were rendered, and batch['task'][0] as `instruction`."
-    )
+    pred = policy.predict(batch)
+    cloud = pred.cloud_points[0]
+    finite = torch.isfinite(cloud).all(-1)
+    gt = batch.get("action")
+    gt_action = None
+    if gt is not None:
+        gt_action = gt[0, 0] if gt.ndim == 3 else gt[0]
+        gt_action = gt_action.float().cpu().numpy()
+    bounds = pred.bounds[:1]
+    pred_pixels = policy.renderer.project(pred.point_cube[:1, None])[0, 0]
+    gt_pixels = None
+    if gt_action is not None:
+        gt_cube = world_to_cube(torch.as_tensor(gt_action[None, None, :3], device=bounds.device), bounds)
+        gt_pixels = policy.renderer.project(gt_cube)[0, 0].cpu().numpy()
+    tasks = batch.get("task")
+    return {
+        "views": pred.views[0].float().cpu().numpy(),
+        "heatmaps": pred.heatmaps[0].float().cpu().numpy(),
+        "pred_action": pred.action[0].float().cpu().numpy(),
+        "gt_action": gt_action,
+        "cloud_xyz": cloud[finite].float().cpu().numpy(),
+        "cloud_rgb": pred.cloud_colors[0][finite].float().cpu().numpy(),
+        "rot_probs": pred.rotation_probs[0].cpu().numpy(),
+        "grip_probs": pred.gripper_probs[0].cpu().numpy(),
+        "collision_probs": pred.collision_probs[0].cpu().numpy(),
+        "instruction": tasks[0] if isinstance(tasks, list | tuple) else str(tasks),
+        "gt_pixels": gt_pixels,
+        "pred_pixels": pred_pixels.cpu().numpy(),
+    }

@@ -7,6 +7,9 @@ import json
 from lerobot.datasets.lerobot_dataset import LeRobotDataset
 
 from pipelines.demo import DemoConfig, run_demo
+from pipelines.viz.cli import PolicyViewConfig, run_policy_view
+from sigma_policy.renderer import VIEW_NAMES
+from tests.pipelines.viz_fixtures import read_rrd
 
 
 def test_quick_demo_runs_every_stage(tmp_path):
@@ -26,3 +29,16 @@ def test_quick_demo_runs_every_stage(tmp_path):
     for path in report["recordings"].values():
         assert (out / "viz").exists() and path.endswith(".rrd")
     assert json.loads((out / "demo.json").read_text())["stage_seconds"]
+
+    # The policy viewer on the trained checkpoint and a real keyframe-dataset frame (sigma-viz policy).
+    rrd = tmp_path / "policy.rrd"
+    line = run_policy_view(
+        PolicyViewConfig(checkpoint=ckpt, root=report["datasets"]["keyframe"], frame_index=1, save=rrd)
+    )
+    assert "5 views" in line and "translation error" in line
+    contents = read_rrd(rrd)
+    for name in VIEW_NAMES:
+        assert contents.rows[f"/policy/views/{name}/heatmap"]["Tensor:data"] == 1
+        assert contents.rows[f"/policy/views/{name}/markers/gt"]["Points2D:positions"] == 1
+    assert len(contents.values["/policy/world/point_cloud"]["Points3D:positions"][0]) > 100
+    assert contents.rows["/policy/probs/gripper"]["BarChart:values"] == 1
