@@ -20,6 +20,8 @@ from pathlib import Path
 import numpy as np
 from lerobot.datasets import LeRobotDataset
 
+from sigma_data.episode import DENSE_ACTION_NAMES, KEYFRAME_ACTION_NAMES, STATE_NAMES
+
 H, W = 24, 32
 FPS = 20
 TABLE_Z = 0.8
@@ -28,20 +30,6 @@ CUBE_HALF = 0.025
 MISS_DEPTH_M = 10.0  # depth written where a ray hits nothing (like a far plane)
 CAMERAS = ("agentview", "robot0_eye_in_hand")
 TASK = "pick up the red cube"
-STATE_NAMES = [
-    "eef_x",
-    "eef_y",
-    "eef_z",
-    "eef_qx",
-    "eef_qy",
-    "eef_qz",
-    "eef_qw",
-    "gripper_open",
-    "finger_q1",
-    "finger_q2",
-]
-DENSE_ACTION_NAMES = ["dx", "dy", "dz", "rx", "ry", "rz", "grip"]
-KEYFRAME_ACTION_NAMES = ["x", "y", "z", "qx", "qy", "qz", "qw", "gripper_open", "ignore_collision"]
 # Dense episodes: 12 frames, keyframes at these frames (the last frame is a keyframe, as in RVT).
 DENSE_LENGTH = 12
 DENSE_KEYFRAMES = (3, 6, 8, 11)
@@ -139,7 +127,7 @@ def _features(action_names: list[str]) -> dict:
         }
         feats[f"observation.camera.{cam}.intrinsics"] = {"dtype": "float32", "shape": (3, 3), "names": None}
         feats[f"observation.camera.{cam}.extrinsics"] = {"dtype": "float32", "shape": (4, 4), "names": None}
-    feats["observation.state"] = {"dtype": "float32", "shape": (10,), "names": STATE_NAMES}
+    feats["observation.state"] = {"dtype": "float32", "shape": (10,), "names": list(STATE_NAMES)}
     feats["action"] = {"dtype": "float32", "shape": (len(action_names),), "names": action_names}
     return feats
 

@@ -13,23 +13,13 @@ from pathlib import Path
 
 import numpy as np
 
+from sigma_data.episode import STATE_NAMES
+
 TABLE_Z = 0.8
 SIZE = 24
 FOVY_DEG = 45.0
 KEYFRAMES = (5, 10, 19)  # expert keyframes of the 20-frame dense episode
 LENGTH = 20
-STATE_NAMES = [
-    "eef_x",
-    "eef_y",
-    "eef_z",
-    "eef_qx",
-    "eef_qy",
-    "eef_qz",
-    "eef_qw",
-    "gripper_open",
-    "finger_q1",
-    "finger_q2",
-]
 DOWN = np.array([[1.0, 0, 0], [0, -1.0, 0], [0, 0, -1.0]])  # camera-to-world rotation looking straight down
 
 
@@ -80,7 +70,7 @@ def features(kind: str) -> dict:
         }
         feats[f"observation.camera.{cam}.intrinsics"] = {"dtype": "float32", "shape": (3, 3), "names": None}
         feats[f"observation.camera.{cam}.extrinsics"] = {"dtype": "float32", "shape": (4, 4), "names": None}
-    feats["observation.state"] = {"dtype": "float32", "shape": (10,), "names": STATE_NAMES}
+    feats["observation.state"] = {"dtype": "float32", "shape": (10,), "names": list(STATE_NAMES)}
     if kind == "dense":
         feats["action"] = {
             "dtype": "float32",

@@ -21,6 +21,8 @@ from pathlib import Path
 
 import numpy as np
 
+from sigma_data.episode import KEYFRAME_ACTION_NAMES, STATE_NAMES
+
 TABLE_Z = 0.8
 CUBE_HALF = 0.025
 MARKER_HALF = 0.02
@@ -30,19 +32,6 @@ BOUNDS = (-0.3, -0.3, 0.7, 0.3, 0.3, 1.3)  # metres; scene box for the policy on
 CAMERAS = {"front": ((0.75, 0.0, 1.35), (0.0, 0.0, 0.85)), "side": ((0.1, -0.7, 1.45), (0.0, 0.0, 0.85))}
 FOVY_DEG = 55.0
 COLORS = {"red": (220, 30, 30), "blue": (30, 60, 230), "table": (150, 140, 120), "marker": (20, 20, 20)}
-STATE_NAMES = [
-    "eef_x",
-    "eef_y",
-    "eef_z",
-    "eef_qx",
-    "eef_qy",
-    "eef_qz",
-    "eef_qw",
-    "gripper_open",
-    "finger_q1",
-    "finger_q2",
-]
-ACTION_NAMES = ["x", "y", "z", "qx", "qy", "qz", "qw", "gripper_open", "ignore_collision"]
 
 
 @dataclass(frozen=True)
@@ -118,8 +107,8 @@ def features(size: int) -> dict:
         }
         feats[f"observation.camera.{cam}.intrinsics"] = {"dtype": "float32", "shape": (3, 3), "names": None}
         feats[f"observation.camera.{cam}.extrinsics"] = {"dtype": "float32", "shape": (4, 4), "names": None}
-    feats["observation.state"] = {"dtype": "float32", "shape": (10,), "names": STATE_NAMES}
-    feats["action"] = {"dtype": "float32", "shape": (9,), "names": ACTION_NAMES}
+    feats["observation.state"] = {"dtype": "float32", "shape": (10,), "names": list(STATE_NAMES)}
+    feats["action"] = {"dtype": "float32", "shape": (9,), "names": list(KEYFRAME_ACTION_NAMES)}
     return feats
 
 
