@@ -193,7 +193,10 @@ class SigmaWriter:
             use_videos=use_videos,
             streaming_encoding=streaming_encoding and use_videos,
             depth_encoder=DepthEncoderConfig(
-                depth_min=depth_range.depth_min, depth_max=depth_range.depth_max
+                depth_min=depth_range.depth_min,
+                depth_max=depth_range.depth_max,
+                # lossless as LeRobot's default; x265 otherwise prints its statistics for every depth video
+                extra_options={"x265-params": "lossless=1:log-level=error"},
             ),
             image_writer_threads=image_writer_threads,
             video_backend="pyav",  # read-back decoder; torchcodec cannot load here (lerobot_notes §6)
