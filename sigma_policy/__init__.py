@@ -1,12 +1,17 @@
 """sigma_policy: the Σ-agent policy as a LeRobot policy plugin (``--policy.type=sigma``).
 
 Importing the package registers the policy type ``sigma``, the optimiser ``lamb`` and the processor step
-``sigma_calibration_batch`` (needed to reload saved pre-processors). ``SigmaPolicy`` is imported on first use.
+``sigma_calibration_batch`` (needed to reload saved pre-processors), and installs a result-identical speed fix
+for LeRobot's multi-frame dataset reads (:mod:`sigma_policy.lerobot_patches`). ``SigmaPolicy`` is imported on
+first use.
 """
 
+from sigma_policy import lerobot_patches
 from sigma_policy.configuration_sigma import SigmaConfig
 from sigma_policy.lamb import Lamb, LambConfig
 from sigma_policy.processor_sigma import SigmaCalibrationBatchStep, make_sigma_pre_post_processors
+
+lerobot_patches.install()
 
 __all__ = [
     "Lamb",
