@@ -42,7 +42,7 @@ class DemoConfig:
     episodes: int = 8
     eval_episodes: int = 4
     # Training steps and batch size of the small policy.
-    steps: int = 1500
+    steps: int = 800
     batch_size: int = 8
     cameras: list[str] = field(
         default_factory=lambda: ["agentview", "frontview", "birdview", "robot0_eye_in_hand"]
