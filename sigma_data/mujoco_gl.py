@@ -25,3 +25,16 @@ def configure_mujoco_gl() -> str:
     if backend in ("egl", "osmesa"):
         os.environ.setdefault("PYOPENGL_PLATFORM", backend)
     return backend
+
+
+def quiet_robosuite() -> None:
+    """Silence robosuite's per-env start-up warnings (controller parts a Panda does not have, mink IK).
+
+    robosuite logs them through its own ``robosuite_logs`` logger at every ``suite.make``; errors still show.
+    """
+    import logging
+
+    logger = logging.getLogger("robosuite_logs")
+    logger.setLevel(logging.ERROR)
+    for handler in logger.handlers:
+        handler.setLevel(logging.ERROR)

@@ -242,6 +242,10 @@ def make_env(task: TaskSpec, cameras: Sequence[str] = (), height: int = 128, wid
     import robosuite as suite
     from robosuite.controllers import load_composite_controller_config
 
+    from sigma_data.mujoco_gl import quiet_robosuite
+
+    quiet_robosuite()
+
     cameras = list(cameras)
     if height <= 0 or width <= 0:
         raise ValueError(f"image size must be positive, got height={height}, width={width}")
