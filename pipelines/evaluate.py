@@ -196,7 +196,7 @@ class _Worker:
             for k in range(1, self.cfg.max_keyframes + 1):
                 action = self.act(obs, env.task_description)
                 if rec is not None:
-                    self._log_step(rec, obs, action, env.task_description, k)
+                    self._log_step(rec, env.task_description, k)
                 obs, _, terminated, _, info = env.step(action)
                 steps += info["control_steps"]
                 success = bool(info["is_success"])
@@ -236,36 +236,13 @@ class _Worker:
         )
         return rec, str(path)
 
-    def _log_step(self, rec, obs: dict, action, instruction: str, step: int) -> None:
-        import numpy as np
-
-        from pipelines.viz.policy import log_policy_frame
-        from sigma_data.cameras import backproject
-        from sigma_data.sim_env import DEPTH_SCALE
+    def _log_step(self, rec, instruction: str, step: int) -> None:
+        """Log the policy's last decision (views, heatmaps, prediction, cloud) at ``step`` of the rollout."""
+        from pipelines.viz.policy import log_policy_frame, prediction_frame
 
         pred = self.policy.last_prediction
-        if pred is None:
-            return
-        clouds, colours = [], []
-        for cam in self.cameras:
-            depth = obs[f"images.{cam}_depth"][0] / DEPTH_SCALE[self.policy.config.depth_unit]
-            pts = backproject(depth, obs[f"camera.{cam}.intrinsics"], obs[f"camera.{cam}.extrinsics"])
-            clouds.append(pts.reshape(-1, 3))
-            colours.append(obs["pixels"][cam].reshape(-1, 3))
-        log_policy_frame(
-            rec,
-            pred.views[0].float().cpu().numpy(),
-            pred.heatmaps[0].float().cpu().numpy(),
-            action,
-            None,
-            np.concatenate(clouds),
-            np.concatenate(colours),
-            getattr(pred, "rotation_probs", None),
-            getattr(pred, "gripper_probs", None),
-            getattr(pred, "collision_probs", None),
-            instruction,
-            step=step,
-        )
+        if pred is not None:
+            log_policy_frame(rec, **prediction_frame(self.policy, pred, instruction), step=step)
 
 
 def _batched(value):
@@ -324,8 +301,8 @@ def summarise(results: list[EpisodeResult], cfg: EvalConfig) -> dict:
 
 def markdown_table(summary: dict) -> str:
     lines = [
-        "| task | variation | success | 95% CI | episodes | mean keyframes | seeds |",
-        "|---|---|---|---|---|---|---|",
+        "| task | variation | success | 95% CI | episodes | mean keyframes | errors | seeds |",
+        "|---|---|---|---|---|---|---|---|",
     ]
     for r in summary["variations"]:
         seeds = r["seeds"]
@@ -333,9 +310,9 @@ def markdown_table(summary: dict) -> str:
         lines.append(
             f"| {r['task']} | {r['variation']} | {r['successes']}/{r['episodes']} ({100 * r['success_rate']:.0f}%) "
             f"| {100 * r['ci95'][0]:.0f}–{100 * r['ci95'][1]:.0f}% | {r['episodes']} | {r['mean_keyframes']:.1f} "
-            f"| {seed_txt} |"
+            f"| {r['errors']} | {seed_txt} |"
         )
-    lines.append(f"| **mean** | | **{100 * summary['mean_success']:.1f}%** | | | | |")
+    lines.append(f"| **mean** | | **{100 * summary['mean_success']:.1f}%** | | | | | |")
     return "\n".join(lines)
 
 

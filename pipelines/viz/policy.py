@@ -311,29 +311,22 @@ def _summary_markdown(
     return "\n".join(lines)
 
 
-def policy_frame_outputs(policy: Any, batch: dict[str, Any]) -> dict[str, Any]:
-    """Run ``SigmaPolicy.predict`` on a pre-processed batch and return ``log_policy_frame``'s keyword arguments
-    for its first sample: the 5 virtual views (V, 10, H, W), per-view heatmaps (V, H, W), the decoded 9-D
-    world-frame prediction, the true next keyframe (``batch["action"]``, when present), the fused input cloud,
-    rotation-bin / gripper / collision probabilities, the instruction, and the true and predicted translation
-    projected into every view (``gt_pixels`` / ``pred_pixels``, (V, 2) as (u, v))."""
+def prediction_frame(
+    policy: Any, pred: Any, instruction: str, gt_action: np.ndarray | None = None
+) -> dict[str, Any]:
+    """``log_policy_frame``'s keyword arguments for the first sample of a ``SigmaPrediction``: the 5 virtual views
+    (V, 10, H, W), per-view heatmaps (V, H, W), the decoded 9-D world-frame prediction, the fused input cloud,
+    rotation-bin / gripper / collision probabilities, and the predicted (and, given ``gt_action``, the true)
+    translation projected into every view (``pred_pixels`` / ``gt_pixels``, (V, 2) as (u, v))."""
     from sigma_policy.pointcloud import world_to_cube
 
-    pred = policy.predict(batch)
     cloud = pred.cloud_points[0]
     finite = torch.isfinite(cloud).all(-1)
-    gt = batch.get("action")
-    gt_action = None
-    if gt is not None:
-        gt_action = gt[0, 0] if gt.ndim == 3 else gt[0]
-        gt_action = gt_action.float().cpu().numpy()
     bounds = pred.bounds[:1]
-    pred_pixels = policy.renderer.project(pred.point_cube[:1, None])[0, 0]
     gt_pixels = None
     if gt_action is not None:
         gt_cube = world_to_cube(torch.as_tensor(gt_action[None, None, :3], device=bounds.device), bounds)
         gt_pixels = policy.renderer.project(gt_cube)[0, 0].cpu().numpy()
-    tasks = batch.get("task")
     return {
         "views": pred.views[0].float().cpu().numpy(),
         "heatmaps": pred.heatmaps[0].float().cpu().numpy(),
@@ -344,7 +337,19 @@ def policy_frame_outputs(policy: Any, batch: dict[str, Any]) -> dict[str, Any]:
         "rot_probs": pred.rotation_probs[0].cpu().numpy(),
         "grip_probs": pred.gripper_probs[0].cpu().numpy(),
         "collision_probs": pred.collision_probs[0].cpu().numpy(),
-        "instruction": tasks[0] if isinstance(tasks, list | tuple) else str(tasks),
+        "instruction": instruction,
         "gt_pixels": gt_pixels,
-        "pred_pixels": pred_pixels.cpu().numpy(),
+        "pred_pixels": policy.renderer.project(pred.point_cube[:1, None])[0, 0].cpu().numpy(),
     }
+
+
+def policy_frame_outputs(policy: Any, batch: dict[str, Any]) -> dict[str, Any]:
+    """Run ``SigmaPolicy.predict`` on a pre-processed dataset batch; see :func:`prediction_frame`. The true next
+    keyframe is ``batch["action"]`` (when present) and the instruction ``batch["task"]``."""
+    gt = batch.get("action")
+    gt_action = None
+    if gt is not None:
+        gt_action = (gt[0, 0] if gt.ndim == 3 else gt[0]).float().cpu().numpy()
+    tasks = batch.get("task")
+    instruction = tasks[0] if isinstance(tasks, list | tuple) else str(tasks)
+    return prediction_frame(policy, policy.predict(batch), instruction, gt_action)

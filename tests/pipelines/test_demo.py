@@ -24,6 +24,8 @@ def test_quick_demo_runs_every_stage(tmp_path):
     assert json.loads((ckpt / "config.json").read_text())["type"] == "sigma"
     results = json.loads((out / "eval" / "results.json").read_text())
     assert results["variations"] and all(v["episodes"] >= 1 for v in results["variations"])
+    # Rollouts ran to the end (with Rerun logging on): a policy failure is fine, a crash is not.
+    assert [e["error"] for e in results["episodes"]] == [None] * len(results["episodes"])
     assert set(report["recordings"]) >= {"episode"}
     assert any(k.startswith("rollout_") for k in report["recordings"])
     for path in report["recordings"].values():
