@@ -1,0 +1,85 @@
+"""Loader speed: a keyframe-dataset sample as ``lerobot-train`` reads it for sigma (current frame + goal frame).
+
+Compares, in the same run and on the same dataset, LeRobot 0.6.1's own multi-frame query with sigma's grouped
+query (``sigma_policy.lerobot_patches``), and a single-frame read as the floor. Prints a Markdown table.
+
+    python -m benchmarks.bench_loader --root outputs/demo/data/keyframe
+    python -m benchmarks.bench_loader               # writes a small synthetic keyframe dataset first
+"""
+
+from __future__ import annotations
+
+import os
+import tempfile
+import time
+from dataclasses import dataclass
+from pathlib import Path
+
+os.environ.setdefault("HF_HUB_OFFLINE", "1")
+
+import draccus
+
+
+@dataclass
+class LoaderBenchConfig:
+    # A keyframe dataset; default: a synthetic one written to a temporary directory.
+    root: Path | None = None
+    samples: int = 20
+
+
+def _per_item_ms(ds, n: int) -> float:
+    ds[0]  # warm-up (file handles, decoders)
+    start = time.perf_counter()
+    for i in range(n):
+        ds[i % len(ds)]
+    return 1000 * (time.perf_counter() - start) / n
+
+
+def main(cfg: LoaderBenchConfig) -> str:
+    from lerobot.datasets.dataset_reader import DatasetReader
+    from lerobot.datasets.factory import resolve_delta_timestamps
+    from lerobot.datasets.lerobot_dataset import LeRobotDataset, LeRobotDatasetMetadata
+
+    from sigma_policy import lerobot_patches
+    from sigma_policy.configuration_sigma import SigmaConfig
+
+    root = cfg.root
+    if root is None:
+        from tests.sigma_policy.tiny_dataset import write_tiny_keyframe_dataset
+
+        root = write_tiny_keyframe_dataset(Path(tempfile.mkdtemp()) / "ds", size=64)
+    meta = LeRobotDatasetMetadata("local/bench", root=root)
+    deltas = resolve_delta_timestamps(SigmaConfig(preset="small", device="cpu"), meta)
+
+    def load(delta_timestamps):
+        return LeRobotDataset(
+            "local/bench", root=root, delta_timestamps=delta_timestamps, video_backend="pyav"
+        )
+
+    lerobot_patches.install()
+    grouped = _per_item_ms(load(deltas), cfg.samples)
+    patched = DatasetReader._query_hf_dataset
+    DatasetReader._query_hf_dataset = lerobot_patches._grouped_query_hf_dataset.original
+    try:
+        stock = _per_item_ms(load(deltas), cfg.samples)
+    finally:
+        DatasetReader._query_hf_dataset = patched
+    single = _per_item_ms(load(None), cfg.samples)
+    n_keys = sum(k.startswith("observation.") for k in meta.features)
+    table = "\n".join(
+        [
+            f"Dataset {root} ({meta.total_frames} frames, {n_keys} observation features), {cfg.samples} samples:",
+            "",
+            "| read | ms / sample | vs LeRobot |",
+            "|---|---|---|",
+            f"| LeRobot 0.6.1, current + goal frame | {stock:.1f} | 1.0× |",
+            f"| sigma grouped query, current + goal frame | {grouped:.1f} | {stock / grouped:.1f}× faster |",
+            f"| single frame (floor) | {single:.1f} | {stock / single:.1f}× faster |",
+        ]
+    )
+    print(table)
+    return table
+
+
+if __name__ == "__main__":
+    main(draccus.parse(LoaderBenchConfig))
