@@ -230,12 +230,9 @@ def build_env(task: Any, render: RenderConfig, model_seed: int) -> Any:
     """``make_env`` with the random model parameters drawn under ``model_seed`` (global RNG restored)."""
     from sigma_data.tasks import make_env
 
-    saved = np.random.get_state()
-    try:
-        np.random.seed(model_seed)
-        return make_env(task, cameras=render.cameras, height=render.height, width=render.width)
-    finally:
-        np.random.set_state(saved)
+    return make_env(
+        task, cameras=render.cameras, height=render.height, width=render.width, model_seed=model_seed
+    )
 
 
 def check_cameras_exist(cfg: CollectConfig, shards: list[ShardSpec]) -> None:

@@ -231,13 +231,23 @@ def get_variation(task: TaskSpec, name: str) -> Variation:
     )
 
 
-def make_env(task: TaskSpec, cameras: Sequence[str] = (), height: int = 128, width: int = 128) -> Any:
+def make_env(
+    task: TaskSpec,
+    cameras: Sequence[str] = (),
+    height: int = 128,
+    width: int = 128,
+    model_seed: int | None = 0,
+) -> Any:
     """Create the robosuite environment of ``task``.
 
     Panda with the default composite BASIC controller (arm OSC_POSE delta), ``control_freq=20``, no camera
     observations (``use_camera_obs=False``), an offscreen renderer only if ``cameras`` are given (configured
     for those cameras at ``height`` x ``width`` so ``env.sim.render`` works), ``ignore_done=True`` and
     ``hard_reset=False``. Raises ``ValueError`` naming an unknown camera.
+
+    Some scenes draw model parameters when they are built (Lift's cube size) from NumPy's global generator; they
+    are drawn under ``model_seed`` (the caller's random state is restored), so collection, replay and evaluation
+    envs of a task share one model. ``None`` leaves them random.
     """
     import robosuite as suite
     from robosuite.controllers import load_composite_controller_config
@@ -262,7 +272,13 @@ def make_env(task: TaskSpec, cameras: Sequence[str] = (), height: int = 128, wid
     }
     if cameras:
         kwargs.update(camera_names=cameras, camera_heights=height, camera_widths=width, camera_depths=True)
-    env = suite.make(task.env_name, **kwargs)
+    saved = np.random.get_state()
+    try:
+        if model_seed is not None:
+            np.random.seed(model_seed)
+        env = suite.make(task.env_name, **kwargs)
+    finally:
+        np.random.set_state(saved)
     known = set(env.sim.model.camera_names)
     unknown = [c for c in cameras if c not in known]
     if unknown:
