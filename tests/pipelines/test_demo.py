@@ -3,6 +3,9 @@
 from __future__ import annotations
 
 import json
+import subprocess
+import sys
+from pathlib import Path
 
 from lerobot.datasets.lerobot_dataset import LeRobotDataset
 
@@ -44,3 +47,30 @@ def test_quick_demo_runs_every_stage(tmp_path):
         assert contents.rows[f"/policy/views/{name}/markers/gt"]["Points2D:positions"] == 1
     assert len(contents.values["/policy/world/point_cloud"]["Points3D:positions"][0]) > 100
     assert contents.rows["/policy/probs/gripper"]["BarChart:values"] == 1
+
+    # The stock evaluator on the same checkpoint through sigma's env plugin (discovered via the shim).
+    eval_dir = tmp_path / "lerobot_eval"
+    cams = "[" + ",".join(DemoConfig(quick=True).cameras) + "]"
+    proc = subprocess.run(
+        [
+            str(Path(sys.executable).with_name("lerobot-eval")),
+            f"--policy.path={ckpt}",
+            "--env.type=sigma_robosuite",
+            "--env.task=lift",
+            f"--env.cameras={cams}",
+            f"--env.image_size={DemoConfig(quick=True).image_size}",
+            "--env.episode_length=2",
+            "--eval.n_episodes=1",
+            "--eval.batch_size=1",
+            "--policy.device=cpu",
+            "--seed=100000",
+            f"--output_dir={eval_dir}",
+        ],
+        capture_output=True,
+        text=True,
+        timeout=600,
+    )
+    assert proc.returncode == 0, proc.stderr[-4000:]
+    info = json.loads((eval_dir / "eval_info.json").read_text())
+    assert info["overall"]["n_episodes"] == 1
+    assert list((eval_dir / "videos").rglob("*.mp4"))
