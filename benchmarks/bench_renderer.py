@@ -4,17 +4,22 @@ Rows: the vectorised renderer (``sigma_policy.renderer.VirtualViewRenderer``) on
 brute-force reference renderer of the tests (every pixel tests every point, O(V H W N)) in the same run, and the
 same on CUDA (renderer at batch 1, 8 and 32; reference at batch 1) when a GPU is available. The brute force
 is timed on ``ref_points`` points on CPU (its cost is linear in N; the table gives the measured time and the
-linear extrapolation to ``points``). Speed-ups are ratios of times measured in this run.
+linear extrapolation to ``points``). Speed-ups are ratios of times measured in this run. After timing, the
+renderer's output is checked against the reference on each device. The Markdown table (with the command, the
+CPU affinity and the devices) is printed and written to ``output``.
 
     python -m benchmarks.bench_renderer                     # from the repository root
-    python -m benchmarks.bench_renderer --threads 2 --repeats 10
+    taskset -c 0,1 python -m benchmarks.bench_renderer --threads 2   # "2 CPU cores", as the goal is stated
 """
 
 from __future__ import annotations
 
+import os
+import sys
 import time
 from collections.abc import Callable
 from dataclasses import dataclass
+from pathlib import Path
 
 import draccus
 import torch
@@ -39,6 +44,8 @@ class BenchRendererConfig:
     threads: int = 2
     # Skip the CUDA rows even if a GPU is available.
     cpu_only: bool = False
+    # Markdown file the table is written to ("" = print only).
+    output: str = "benchmarks/results/renderer.md"
 
 
 def _cloud(B: int, N: int, device: str) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
@@ -95,19 +102,41 @@ def main(cfg: BenchRendererConfig) -> list[tuple[str, str, int, int, float]]:
                 ("brute-force reference (x N linear, est.)", device, 1, cfg.points, ms * cfg.points / n_ref)
             )
 
-    threads = torch.get_num_threads()
-    print(
-        f"\nRenderer: {cfg.points} points -> 5 x {S}^2 x 10 channels, radius {r} px; torch {torch.__version__}, "
-        f"{threads} CPU threads" + (f", {torch.cuda.get_device_name()}" if "cuda" in devices else "")
-    )
-    print("\n| what | device | batch | points | ms / sample | vs renderer (same device, batch 1) |")
-    print("|---|---|---|---|---|---|")
+    lines = _markdown(cfg, rows, "cuda" in devices)
+    print("\n" + "\n".join(lines))
+    if cfg.output:
+        Path(cfg.output).parent.mkdir(parents=True, exist_ok=True)
+        Path(cfg.output).write_text("\n".join(lines) + "\n")
+    cpu8 = next(m for w, d, b, _, m in rows if w == "renderer" and d == "cpu" and b == 8)
+    summary = f"CPU renderer at batch 8: {cpu8:.2f} ms per sample (goal <= 10 ms on 2 cores)"
+    if "cuda" in devices:
+        gpu32 = next(m for w, d, b, _, m in rows if w == "renderer" and d == "cuda" and b == 32)
+        summary += f"; CUDA at batch 32: {gpu32:.3f} ms per sample (goal <= 0.3 ms on an H100)"
+    print(f"\n{summary}." + (f" Table written to {cfg.output}." if cfg.output else ""))
+    return rows
+
+
+def _markdown(
+    cfg: BenchRendererConfig, rows: list[tuple[str, str, int, int, float]], cuda: bool
+) -> list[str]:
+    affinity = sorted(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else []
+    lines = [
+        "# Virtual-view renderer benchmark",
+        "",
+        f"Command: `{' '.join(getattr(sys, 'orig_argv', sys.argv))}`",
+        "",
+        f"{cfg.points} points -> 5 x {cfg.img_size}^2 x 10 channels, radius {cfg.radius_px} px; torch "
+        f"{torch.__version__}, {torch.get_num_threads()} CPU threads, CPU affinity {len(affinity)} cores "
+        f"{affinity}" + (f", {torch.cuda.get_device_name()}" if cuda else "") + "; median of "
+        f"{cfg.repeats} calls after 2 warm-up calls.",
+        "",
+        "| what | device | batch | points | ms / sample | vs renderer (same device, batch 1) |",
+        "|---|---|---|---|---|---|",
+    ]
     for what, device, B, n, ms in rows:
         base = next(m for w, d, b, _, m in rows if w == "renderer" and d == device and b == 1)
-        print(f"| {what} | {device} | {B} | {n} | {ms:.3f} | {ms / base:.2f}x |")
-    cpu8 = next(m for w, d, b, _, m in rows if w == "renderer" and d == "cpu" and b == 8)
-    print(f"\nCPU renderer at batch 8: {cpu8:.2f} ms per sample (goal <= 10 ms on 2 cores).")
-    return rows
+        lines.append(f"| {what} | {device} | {B} | {n} | {ms:.3f} | {ms / base:.2f}x |")
+    return lines
 
 
 if __name__ == "__main__":

@@ -34,15 +34,26 @@ non-empty pixels of that image; empty pixels get depth ``-1`` and zeros in the x
 location channels are the view id ``linspace(-1, 1, 5)[view]``, the row coordinate ``linspace(-1, 1, H)`` and the
 column coordinate ``linspace(-1, 1, W)``.
 
-Implementation: all (sample, view, point, neighbour-pixel) candidates are built at once; each candidate's key
-packs the float32 depth bits (monotonic for z >= 0) above the flat point index into one int64, and a single
-``scatter_reduce_(..., "amin")`` over the batch's flat pixel buffer is the z-buffer. No Python loop over points,
-views or samples. Candidates per point and view: ``(floor(2 r) + 1)^2`` (9 for r = 1.32).
+Implementation (no Python loop over points or pixels). Each view depends on two cube coordinates for its
+image axes and one for its depth, and the 5 views use only 5 distinct image-axis quantities (``(1 +- x) S/2``,
+``(1 +- y) S/2``, ``(1 - z) S/2``), so per point and quantity the ``T = 2 ceil(r - 1/2) + 1`` candidate pixel
+rows/columns around ``floor(q)`` (3 for r = 1.32) and their squared centre distances are computed once. A point's
+key packs its float32 view depth bits (monotonic for z >= 0) above its flat point index into one int64, and per
+view the ``T x T`` candidates are scattered with ``scatter_reduce_(..., "amin")`` into one flat buffer covering
+the whole batch and all views -- the z-buffer. The radius test ``d_row^2 + d_col^2 < r^2`` is evaluated in float32
+exactly as written, but turned into the scatter address with integer bit operations (the sign bit of
+``d^2 - r^2``): candidates outside the disc, off the image or of invalid points go to a dummy slot on CPU, where
+boolean masks and ``torch.where`` are several times slower than integer arithmetic; on CUDA they are dropped
+with a boolean mask instead (one slot would serialise the atomics). On CPU the work runs one sample at a time
+so the candidate buffers stay in cache and are reused. The winner's depth and index are then unpacked once and
+its coordinates and features gathered straight into the output.
 """
 
 from __future__ import annotations
 
 import math
+import sys
+import threading
 
 import torch
 from torch import Tensor, nn
@@ -60,13 +71,23 @@ VIEW_AXES: tuple[tuple[int, int, int, int, int, int], ...] = (
     (1, -1, 2, -1, 0, +1),  # right: camera at -x
 )
 
-_INT64_MAX = torch.iinfo(torch.int64).max
 
+# The 5 distinct image-axis quantities (axis, sign) -> q = (1 + sign * coordinate[axis]) * S / 2, and per view the
+# positions of its column (u) and row (v) quantities in this list.
+_AXIS_QUANTITIES: tuple[tuple[int, int], ...] = tuple(
+    dict.fromkeys(q for a in VIEW_AXES for q in ((a[0], a[1]), (a[2], a[3])))
+)
+_VIEW_QUANTITIES: tuple[tuple[int, int], ...] = tuple(
+    (_AXIS_QUANTITIES.index((a[0], a[1])), _AXIS_QUANTITIES.index((a[2], a[3]))) for a in VIEW_AXES
+)
 
-def _pick(cond: Tensor, a: Tensor, b: int) -> Tensor:
-    """``where(cond, a, b)`` for int64 ``a`` and a scalar ``b``, as ``b + cond * (a - b)``: exact, and about 3x
-    faster than ``torch.where`` on CPU for the hot loops below (the GPU does not care)."""
-    return (a - b).mul_(cond).add_(b)
+_INF_BITS = 0x7F800000  # float32 +inf as int32 bits: the key's depth part for an empty pixel
+_NEG_ONE_BITS = -0x40800000  # float32 -1.0 as int32 bits (0xBF800000): the depth channel of an empty pixel
+_LOW32 = 0xFFFFFFFF
+_SCATTER_MODES = ("auto", "dummy", "spread", "compact")
+_OFF_IMAGE = (
+    1e30  # added (times the squared pixel overshoot >= 1) to the squared distance of off-image pixels
+)
 
 
 def _view_tables(device: torch.device) -> tuple[Tensor, Tensor]:
@@ -88,15 +109,58 @@ def project_points(points_cube: Tensor, img_size: int) -> tuple[Tensor, Tensor]:
     return uv, q[..., 2]
 
 
+class _Workspace:
+    """Named scratch tensors. With ``reuse`` (CPU) they persist across calls: a fresh large CPU allocation is
+    page-faulted in on first touch, which costs more than the arithmetic of a render. Without it (CUDA, whose
+    caching allocator already recycles memory) every request is a new ``torch.empty``."""
+
+    def __init__(self, reuse: bool) -> None:
+        self.reuse = reuse
+        self._store: dict[str, Tensor] = {}
+
+    def get(self, name: str, shape: tuple[int, ...], dtype: torch.dtype, device: torch.device) -> Tensor:
+        numel = math.prod(shape)
+        if not self.reuse:
+            return torch.empty(shape, dtype=dtype, device=device)
+        t = self._store.get(name)
+        if t is None or t.dtype != dtype or t.device != device or t.numel() < numel:
+            t = self._store[name] = torch.empty(numel, dtype=dtype, device=device)
+        return t[:numel].view(shape)
+
+
+_CPU_WORKSPACES = threading.local()  # one per thread, so concurrent renders never share scratch memory
+
+
+def _workspace(device: torch.device) -> _Workspace:
+    if device.type != "cpu":
+        return _Workspace(reuse=False)
+    # Tensors made under torch.inference_mode() cannot be updated in place outside it (and vice versa would
+    # leak inference tensors into autograd code): keep one workspace per mode.
+    name = "ws_inference" if torch.is_inference_mode_enabled() else "ws"
+    if not hasattr(_CPU_WORKSPACES, name):
+        setattr(_CPU_WORKSPACES, name, _Workspace(reuse=True))
+    return getattr(_CPU_WORKSPACES, name)
+
+
+def _one_plus(c: Tensor, sign: int, out: Tensor) -> Tensor:
+    """``1 + sign * c`` (float32) into ``out``, bit-identical to the table's ``1 + c`` / ``1 - c``."""
+    return torch.add(c, 1, out=out) if sign > 0 else torch.sub(1, c, out=out)
+
+
 class VirtualViewRenderer(nn.Module):
     """Render cube-space point clouds into 5 orthographic views (see the module docstring for conventions).
 
     Args:
         img_size: output height = width in pixels (220 in the paper).
         radius_px: splat radius in pixels (1.32 = RVT's 0.012 NDC at 220 px).
+        scatter_mode: where the candidate pixels outside a point's disc go (the result is identical):
+            ``"dummy"`` one dummy slot (cheapest on CPU, where the scatter is serial), ``"spread"`` a shadow copy
+            of the buffer at the same pixel (CUDA: no atomic hot spot, no compaction), ``"compact"`` dropped with
+            a boolean mask first (fewer atomics, but the compaction costs more on both devices), ``"auto"``
+            (default) ``"dummy"`` on CPU and ``"spread"`` elsewhere.
     """
 
-    def __init__(self, img_size: int = 220, radius_px: float = 1.32) -> None:
+    def __init__(self, img_size: int = 220, radius_px: float = 1.32, scatter_mode: str = "auto") -> None:
         super().__init__()
         if img_size < 1:
             raise ValueError(f"img_size must be positive, got {img_size}")
@@ -104,8 +168,14 @@ class VirtualViewRenderer(nn.Module):
             raise ValueError(f"radius_px must be positive, got {radius_px}")
         self.img_size = int(img_size)
         self.radius_px = float(radius_px)
-        # Pixel centres c = j + 0.5 with |c - u| < r satisfy j in (u - r - 0.5, u + r - 0.5): at most floor(2r)+1.
-        self._taps = math.floor(2 * self.radius_px) + 1
+        if scatter_mode not in _SCATTER_MODES:
+            raise ValueError(f"scatter_mode must be one of {_SCATTER_MODES}, got {scatter_mode!r}")
+        self.scatter_mode = scatter_mode
+        # Candidate pixels per axis: floor(q) - reach .. floor(q) + reach (3 for r = 1.32). A pixel j more than
+        # reach away has |j + 0.5 - q| >= reach + 1/2 >= r, so it cannot be covered.
+        self._reach = max(0, math.ceil(self.radius_px - 0.5))
+        # The coverage test is d^2 < r^2 in float32, like the brute-force reference.
+        self._rr = float(torch.tensor(self.radius_px**2, dtype=torch.float32))
         S, V = self.img_size, len(VIEW_NAMES)
         lin = torch.linspace(-1, 1, S)
         loc = torch.stack(
@@ -131,127 +201,164 @@ class VirtualViewRenderer(nn.Module):
     def zbuffer(self, points_cube: Tensor, mask: Tensor | None = None) -> tuple[Tensor, Tensor]:
         """Winning point per pixel: ``index (B, V, H, W)`` int64 into N (-1 where empty) and float32 ``depth``
         ``(B, V, H, W)`` (view z of the winner, +inf where empty)."""
+        buf = self._packed_zbuffer(points_cube, mask, _workspace(points_cube.device))
+        B, N, _ = points_cube.shape
+        win = buf[1:].view(B, self.num_views, self.img_size, self.img_size)
+        depth = (win >> 32).to(torch.int32).view(torch.float32)  # empty pixels hold +inf bits
+        flat = win & _LOW32
+        index = flat - (torch.arange(B, device=win.device) * N).view(B, 1, 1, 1)
+        return torch.where(flat == B * N, -1, index), depth
+
+    def _packed_zbuffer(self, points_cube: Tensor, mask: Tensor | None, ws: _Workspace) -> Tensor:
+        """The z-buffer as packed int64 keys ``(1 + B*V*H*W,)`` (memory of ``ws``): slot 0 is a dummy, then pixel
+        ``(b, v, i, j)`` at ``1 + ((b*V + v)*H + i)*W + j`` holds ``depth_bits << 32 | (b*N + n)`` of its winner
+        ``n`` or, if empty, ``+inf bits << 32 | B*N`` (larger than every real key)."""
         if points_cube.ndim != 3 or points_cube.shape[-1] != 3:
             raise ValueError(f"points_cube must be (B, N, 3), got {tuple(points_cube.shape)}")
         B, N, _ = points_cube.shape
-        S, V = self.img_size, self.num_views
-        if B * N >= 2**31:
-            raise ValueError(f"batch too large for the packed z-buffer: B*N = {B * N} >= 2^31")
-        dev = points_cube.device
-        valid = torch.isfinite(points_cube).all(-1)
+        M, S, V, dev = B * N, self.img_size, self.num_views, points_cube.device
+        if M >= 2**31 - 1:
+            raise ValueError(f"batch too large for the packed z-buffer: B*N = {M} >= 2^31 - 1")
+        if 1 + B * V * S * S >= 2**31:
+            raise ValueError(f"batch too large for int32 pixel addresses: B*V*H*W = {B * V * S * S}")
+        mode = (
+            self.scatter_mode if self.scatter_mode != "auto" else ("dummy" if dev.type == "cpu" else "spread")
+        )
+        pts = points_cube.float()
+        valid = torch.isfinite(pts).all(-1)
         if mask is not None:
             if mask.shape != (B, N):
                 raise ValueError(f"mask must be (B, N) = {(B, N)}, got {tuple(mask.shape)}")
-            valid = valid & mask.to(dev, torch.bool)
-        # Structure-of-arrays layout (B, V, N): every elementwise op below runs over long contiguous rows.
-        pts = torch.where(valid[..., None], points_cube.float(), 0.0).transpose(1, 2)  # (B, 3, N)
-        axes, signs = _view_tables(dev)
-        q = (1 + pts.index_select(1, axes) * signs[:, None].float()).view(B, V, 3, N)
-        u, v, z = q[:, :, 0] * (S / 2), q[:, :, 1] * (S / 2), q[:, :, 2].contiguous()  # (B, V, N) each
-        valid = valid[:, None, :] & (z >= 0)
-        zbits = z.view(torch.int32).to(torch.int64)  # monotonic in z for z >= 0
-        flat_idx = torch.arange(B * N, device=dev, dtype=torch.int64).view(B, 1, N)
-        key = torch.where(valid, (zbits << 32) | flat_idx, _INT64_MAX)  # (B, V, N)
-        P = B * V * S * S
-        base = (torch.arange(B * V, device=dev) * (S * S)).view(B, V, 1)
-
-        # Stage 1: per pixel cell, the nearest point lying inside it (one scatter of B*V*N keys).
-        col, row = torch.floor(u.clamp(-1, S)).long(), torch.floor(v.clamp(-1, S)).long()
-        in_img = valid & (col >= 0) & (col < S) & (row >= 0) & (row < S)
-        # Rejected entries scatter the neutral key to a clamped (spread-out) address: a single dummy address
-        # would serialise the GPU's atomics.
-        own = (base + row * S + col).clamp_(0, P - 1)
-        cell_best = torch.full((P + 1,), _INT64_MAX, dtype=torch.int64, device=dev)
-        own_key = _pick(in_img, key, _INT64_MAX)
-        cell_best.scatter_reduce_(0, own.view(-1), own_key.view(-1), reduce="amin", include_self=True)
-        is_cell_best = in_img & (cell_best.index_select(0, own.view(-1)).view_as(own) == key)
-
-        # Stage 2 (dense): each pixel takes the nearest cell winner around it whose disc covers its centre.
-        zbuf = self._dense_splat(cell_best[:P].view(B, V, S, S), u, v)
-
-        # Stage 3: every other point (not its cell's winner, or centred outside the image) is scattered to the
-        # pixels it covers where it beats stage 2's result (an upper bound of the true minimum), so the final
-        # buffer holds the exact minimum over all covering points.
-        rest = (valid & ~is_cell_best).view(-1).nonzero().squeeze(1)
-        if rest.numel():
-            self._scatter_points(
-                zbuf,
-                u.reshape(-1).index_select(0, rest),
-                v.reshape(-1).index_select(0, rest),
-                key.view(-1).index_select(0, rest),
-                (rest // N) * (S * S),
+            valid &= mask.to(dev, torch.bool)
+        # -1 (all bits set) for points to ignore, 0 for the others.
+        ignore = valid.view(M).to(torch.int32).sub_(1)
+        size = 1 + B * V * S * S  # "spread" appends a shadow copy of the pixels
+        buf = ws.get("zbuf", (2 * size - 1 if mode == "spread" else size,), torch.int64, dev)
+        buf.fill_((_INF_BITS << 32) | M)
+        if M == 0:
+            return buf[:size]
+        # CPU: one sample at a time, so the candidate buffers stay cache-sized and are reused. CUDA: whole batch.
+        per_chunk = 1 if dev.type == "cpu" else B
+        for b0 in range(0, B, per_chunk):
+            b1 = min(B, b0 + per_chunk)
+            pixel0 = (  # flat address of pixel (b, view 0, 0, 0), dummy slot included
+                1 + b0 * V * S * S
+                if b1 - b0 == 1
+                else torch.arange(
+                    1 + b0 * V * S * S, 1 + b1 * V * S * S, V * S * S, device=dev, dtype=torch.int32
+                ).repeat_interleave(N)
             )
-        return self._unpack(zbuf, B, N)
+            self._scatter_chunk(
+                buf, pts[b0:b1].view(-1, 3), ignore[b0 * N : b1 * N], b0 * N, pixel0, mode, ws
+            )
+        return buf[:size]
 
-    def _dense_splat(self, cell_best: Tensor, u: Tensor, v: Tensor) -> Tensor:
-        """Flat ``(B*V*S*S + 1,)`` packed-key z-buffer over the cell winners ``cell_best (B, V, S, S)``, using
-        the points' pixel coordinates ``u, v (B, V, N)``; the last slot is a dummy for rejected scatters."""
-        B, V, S, _ = cell_best.shape
-        N = u.shape[-1]
-        R = max(0, math.ceil(self.radius_px - 0.5))  # neighbour cells whose points can reach a pixel centre
-        dev = u.device
-        empty = cell_best == _INT64_MAX
-        # Winner key -> its (b*V + v)*N + n position in the (B, V, N) arrays.
-        shift = (torch.arange(B, device=dev) * ((V - 1) * N)).view(B, 1, 1, 1) + (
-            torch.arange(V, device=dev) * N
-        ).view(1, V, 1, 1)
-        pos = torch.where(empty, 0, (cell_best & 0xFFFFFFFF) + shift).view(-1)
-        win_u = u.reshape(-1).index_select(0, pos).view(B * V, S, S)
-        win_v = v.reshape(-1).index_select(0, pos).view(B * V, S, S)
-        pad = S + 2 * R
-        keys = torch.full((B * V, pad, pad), _INT64_MAX, dtype=torch.int64, device=dev)
-        keys[:, R : R + S, R : R + S] = cell_best.view(B * V, S, S)  # (F.pad would round the fill via float)
-        pu = torch.zeros((B * V, pad, pad), device=dev)
-        pv = torch.zeros((B * V, pad, pad), device=dev)
-        pu[:, R : R + S, R : R + S] = win_u
-        pv[:, R : R + S, R : R + S] = win_v
-        centres = torch.arange(S, device=dev, dtype=torch.float32) + 0.5
-        rr = torch.tensor(self.radius_px**2, dtype=torch.float32, device=dev)
-        out = torch.full((B * V * S * S + 1,), _INT64_MAX, dtype=torch.int64, device=dev)
-        img = out[:-1].view(B * V, S, S)
-        for dr in range(2 * R + 1):
-            for dc in range(2 * R + 1):
-                d2 = (centres[:, None] - pv[:, dr : dr + S, dc : dc + S]).square() + (
-                    centres - pu[:, dr : dr + S, dc : dc + S]
-                ).square()
-                torch.minimum(img, _pick(d2 < rr, keys[:, dr : dr + S, dc : dc + S], _INT64_MAX), out=img)
-        return out
+    def _scatter_chunk(
+        self,
+        buf: Tensor,
+        pts: Tensor,
+        ignore: Tensor,
+        first: int,
+        pixel0: int | Tensor,
+        mode: str,
+        ws: _Workspace,
+    ) -> None:
+        """Scatter-min the keys of ``m`` points ``pts (m, 3)`` (flat indices ``first ..``, ``ignore (m,)`` int32
+        -1/0) into every pixel their disc covers, in all 5 views; ``pixel0`` (scalar or ``(m,)``) is the address
+        of each point's pixel (view 0, 0, 0)."""
+        m, dev = pts.shape[0], pts.device
+        S, T, f32, i32 = self.img_size, 2 * self._reach + 1, torch.float32, torch.int32
+        coords = torch.nan_to_num(pts.t(), 0.0, 0.0, 0.0, out=ws.get("coords", (3, m), f32, dev))
+        flat = torch.arange(first, first + m, out=ws.get("flat", (m,), torch.int64, dev))
 
-    def _scatter_points(self, zbuf: Tensor, u: Tensor, v: Tensor, key: Tensor, base: Tensor) -> None:
-        """Scatter-min ``key (M,)`` of points at ``(u, v) (M,)`` into every pixel of the image starting at flat
-        offset ``base (M,)`` whose centre their disc covers; ``zbuf`` (with a trailing dummy slot) in place."""
-        S, T, r = self.img_size, self._taps, self.radius_px
-        P = zbuf.numel() - 1
-        rr = torch.tensor(r * r, dtype=torch.float32, device=u.device)
-        # Pixel centres c = j + 0.5 with |c - u| < r have j in (u - r - 0.5, u + r - 0.5): at most T integers.
-        first_c = torch.floor(u.clamp(-2 * S, 3 * S) - (r + 0.5)) + 1
-        first_r = torch.floor(v.clamp(-2 * S, 3 * S) - (r + 0.5)) + 1
-        far = 4 * rr  # added to the squared distance of off-image candidates so they fail the radius test
+        # Per image-axis quantity: T candidate pixels and their squared centre distances (T, m).
+        tap_d2 = ws.get("tap_d2", (len(_AXIS_QUANTITIES), T, m), f32, dev)
+        tap_pix = ws.get("tap_pix", (len(_AXIS_QUANTITIES), T, m), i32, dev)
+        q = ws.get("q", (m,), f32, dev)
+        j = ws.get("j", (T, m), f32, dev)
+        jc = ws.get("jc", (T, m), f32, dev)
+        offsets = torch.arange(-self._reach, self._reach + 1, device=dev, dtype=f32)[:, None]
+        for i, (axis, sign) in enumerate(_AXIS_QUANTITIES):
+            _one_plus(coords[axis], sign, out=q).mul_(S / 2).clamp_(
+                -2 * S, 3 * S
+            )  # clamp: far points stay off
+            torch.add(q.floor()[None], offsets, out=j)  # pixel indices floor(q) - reach .. + reach (exact)
+            d2 = torch.add(j, 0.5, out=tap_d2[i]).sub_(q).square_()  # (centre - q)^2 exactly as the reference
+            torch.clamp(j, 0, S - 1, out=jc)
+            d2.addcmul_(j.sub_(jc), j, value=_OFF_IMAGE)  # off-image pixels: +1e30 or more, never covered
+            tap_pix[i].copy_(jc)
 
-        def axis_terms(first: Tensor, p: Tensor) -> list[tuple[Tensor, Tensor]]:
-            out = []
-            for k in range(T):
-                c = first + k
-                off_image = (c < 0) | (c >= S)
-                out.append(((c + 0.5 - p).square_().add_(off_image * far), c.long()))
-            return out
+        z = ws.get("z", (m,), f32, dev)
+        z_bad = ws.get("z_bad", (m,), i32, dev)
+        key = ws.get("key", (m,), torch.int64, dev)
+        row_d2 = ws.get("row_d2", (T, m), f32, dev)
+        row_addr = ws.get("row_addr", (T, m), i32, dev)
+        for view, ((_, _, _, _, cz, sz), (iu, iv)) in enumerate(
+            zip(VIEW_AXES, _VIEW_QUANTITIES, strict=True)
+        ):
+            _one_plus(coords[cz], sz, out=z)
+            # Ignored points and points behind the camera (z < 0: sign bit set) get +inf added to the row distance.
+            torch.bitwise_right_shift(z.view(i32), 31, out=z_bad).bitwise_or_(ignore).bitwise_and_(_INF_BITS)
+            torch.add(tap_d2[iv], z_bad.view(f32), out=row_d2)
+            torch.mul(tap_pix[iv], S, out=row_addr).add_(
+                pixel0 + view * S * S
+            )  # address of each row's pixel 0
+            key.copy_(z.view(i32)).bitwise_left_shift_(32).bitwise_or_(
+                flat
+            )  # z >= 0: float order = int order
+            if mode == "dummy":
+                self._scatter_via_dummy(buf, row_d2, row_addr, tap_d2[iu], tap_pix[iu], key, ws)
+            elif mode == "spread":
+                self._scatter_spread(buf, row_d2, row_addr, tap_d2[iu], tap_pix[iu], key)
+            else:
+                self._scatter_compact(buf, row_d2, row_addr, tap_d2[iu], tap_pix[iu], key)
 
-        rows, cols = axis_terms(first_r, v), axis_terms(first_c, u)
-        for dr2, ri in rows:
-            for dc2, ci in cols:
-                pix = (base + ri * S + ci).clamp_(0, P - 1)
-                # Off-disc candidates and those that cannot lower the minimum scatter the neutral key.
-                ok = ((dr2 + dc2) < rr) & (key < zbuf.index_select(0, pix))
-                zbuf.scatter_reduce_(0, pix, _pick(ok, key, _INT64_MAX), reduce="amin", include_self=True)
+    def _scatter_via_dummy(
+        self,
+        buf: Tensor,
+        row_d2: Tensor,
+        row_addr: Tensor,
+        col_d2: Tensor,
+        col_pix: Tensor,
+        key: Tensor,
+        ws: _Workspace,
+    ) -> None:
+        """Scatter-min ``key (m,)`` into the ``T x T`` candidate pixels (rows ``row_d2, row_addr (T, m)`` x
+        columns ``col_d2, col_pix (T, m)``); candidates outside the disc go to the dummy slot 0."""
+        T, m = row_d2.shape
+        d2 = torch.add(row_d2[:, None], col_d2[None], out=ws.get("d2", (T, T, m), torch.float32, buf.device))
+        # Sign bit of d^2 - r^2 (exact: rounding keeps the sign) as an int32 mask: -1 inside the disc, else 0.
+        inside = d2.sub_(self._rr).view(torch.int32).bitwise_right_shift_(31)
+        addr = torch.add(
+            row_addr[:, None], col_pix[None], out=ws.get("addr", (T, T, m), torch.int32, buf.device)
+        )
+        index = ws.get("index", (T * T, m), torch.int64, buf.device)
+        index.copy_(inside.bitwise_and_(addr).view(T * T, m))
+        for t in range(T * T):
+            buf.scatter_reduce_(0, index[t], key, reduce="amin", include_self=True)
 
-    def _unpack(self, buf: Tensor, B: int, N: int) -> tuple[Tensor, Tensor]:
-        S, V = self.img_size, self.num_views
-        buf = buf[: B * V * S * S]
-        empty = buf == _INT64_MAX
-        index = torch.where(empty, -1, (buf & 0xFFFFFFFF) % max(N, 1))  # flat b*N + n -> n
-        depth = (buf >> 32).to(torch.int32).view(torch.float32)
-        depth = torch.where(empty, torch.full_like(depth, float("inf")), depth)
-        return index.view(B, V, S, S), depth.view(B, V, S, S)
+    def _scatter_spread(
+        self, buf: Tensor, row_d2: Tensor, row_addr: Tensor, col_d2: Tensor, col_pix: Tensor, key: Tensor
+    ) -> None:
+        """As :meth:`_scatter_via_dummy`, but candidates outside the disc go to the same pixel of a shadow copy
+        of the buffer (its second half), so no address is hit more often than a real pixel."""
+        T, m = row_d2.shape
+        shadow = buf.numel() // 2
+        inside = (row_d2[:, None] + col_d2[None]) < self._rr  # (T, T, m)
+        # All candidates start in the shadow copy; those inside the disc move back (few, fused kernels on CUDA).
+        addr = row_addr.to(torch.int64).add_(shadow)[:, None] + col_pix.to(torch.int64)[None]
+        addr = addr.add_(inside, alpha=-shadow).view(T * T, m)
+        for t in range(T * T):
+            buf.scatter_reduce_(0, addr[t], key, reduce="amin", include_self=True)
+
+    def _scatter_compact(
+        self, buf: Tensor, row_d2: Tensor, row_addr: Tensor, col_d2: Tensor, col_pix: Tensor, key: Tensor
+    ) -> None:
+        """As :meth:`_scatter_via_dummy`, but the candidates outside the disc are dropped with a boolean mask."""
+        T, m = row_d2.shape
+        inside = (row_d2[:, None] + col_d2[None]) < self._rr  # (T, T, m)
+        addr = (row_addr[:, None] + col_pix[None])[inside].to(torch.int64)
+        buf.scatter_reduce_(0, addr, key.expand(T, T, m)[inside], reduce="amin", include_self=True)
 
     @torch.no_grad()
     def forward(self, points_cube: Tensor, feats: Tensor, mask: Tensor | None = None) -> Tensor:
@@ -265,17 +372,39 @@ class VirtualViewRenderer(nn.Module):
         B, N, _ = points_cube.shape
         if feats.ndim != 3 or feats.shape[:2] != (B, N):
             raise ValueError(f"feats must be (B, N, F) = ({B}, {N}, F), got {tuple(feats.shape)}")
-        S, V = self.img_size, self.num_views
-        index, depth = self.zbuffer(points_cube, mask)
-        filled = index >= 0  # (B, V, H, W)
-        src = torch.cat([points_cube.float(), feats.float()], dim=-1)  # (B, N, 3 + F)
-        C = src.shape[-1]
-        flat = (index.clamp_min(0) + (torch.arange(B, device=src.device) * N).view(B, 1, 1, 1)).view(-1)
-        vals = src.permute(2, 0, 1).reshape(C, B * N).index_select(1, flat).view(C, B, V, S, S)
-        vals = torch.where(filled[:, :, None], vals.permute(1, 2, 0, 3, 4), 0)  # (B, V, C, H, W)
-        count = filled.sum((-2, -1), keepdim=True)
-        z = torch.where(filled, depth, torch.zeros_like(depth))
-        mean = z.sum((-2, -1), keepdim=True) / count.clamp_min(1)
-        depth_ch = torch.where(filled, depth - mean, torch.full_like(depth, -1.0))
-        loc = self.pixel_loc.to(vals.dtype).expand(B, -1, -1, -1, -1)
-        return torch.cat([vals, depth_ch[:, :, None], loc], dim=2)
+        S, V, M = self.img_size, self.num_views, B * N
+        dev = points_cube.device
+        ws = _workspace(dev)
+        win = self._packed_zbuffer(points_cube, mask, ws)[1:].view(B * V, S * S)
+        out = torch.empty((B, V, 3 + feats.shape[-1] + 4, S, S), device=dev)
+
+        # Winners' xyz and features: gather from channel-major attributes whose column M (the index an empty
+        # pixel unpacks to) is zero.
+        C = 3 + feats.shape[-1]
+        src = ws.get("src", (C, M + 1), torch.float32, dev)
+        src[:3, :M] = points_cube.reshape(M, 3).t()
+        src[3:, :M] = feats.reshape(M, C - 3).t()
+        src[:, M] = 0
+        index = torch.bitwise_and(win, _LOW32, out=ws.get("index_out", (B * V, S * S), torch.int64, dev))
+        if dev.type == "cuda":  # one gather for the batch (few launches); the permuted copy is cheap there
+            out[:, :, :C] = src.index_select(1, index.view(-1)).view(C, B, V, S, S).permute(1, 2, 0, 3, 4)
+        else:  # straight into the output, image by image
+            for i in range(B * V):
+                torch.index_select(src, 1, index[i], out=out[i // V, i % V, :C].view(C, S * S))
+
+        # Depth: winner's z minus the mean over filled pixels, -1 where empty, in integer bit arithmetic.
+        zbits = ws.get("zbits", (B * V, S * S), torch.int32, dev)
+        if sys.byteorder == "little":  # the high words of the keys are the depth bits
+            zbits.copy_(win.view(torch.int32).view(B * V, S * S, 2)[..., 1])
+        else:
+            zbits.copy_(win >> 32)
+        filled = torch.sub(zbits, _INF_BITS, out=ws.get("filled", (B * V, S * S), torch.int32, dev))
+        filled.bitwise_right_shift_(31)  # -1 where filled (depth bits below +inf), 0 where empty
+        z = zbits.bitwise_and_(filled).view(torch.float32)  # 0.0 where empty
+        mean = z.sum(-1, keepdim=True) / filled.sum(-1, keepdim=True).neg_().clamp_min_(1)
+        depth = out[:, :, C]
+        torch.sub(z.view(B, V, S, S), mean.view(B, V, 1, 1), out=depth)
+        depth_bits = depth.view(torch.int32).bitwise_xor_(_NEG_ONE_BITS)
+        depth_bits.bitwise_and_(filled.view(B, V, S, S)).bitwise_xor_(_NEG_ONE_BITS)  # empty: -1.0
+        out[:, :, C + 1 :] = self.pixel_loc.to(dev, out.dtype)
+        return out

@@ -7,7 +7,7 @@ import math
 import pytest
 import torch
 
-from sigma_policy.renderer import VIEW_NAMES, VirtualViewRenderer
+from sigma_policy.renderer import VIEW_NAMES, VirtualViewRenderer, project_points
 
 
 def _reference_uvz(p: torch.Tensor, view: str, S: int) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
@@ -90,6 +90,36 @@ def test_matches_brute_force_reference(S: int, r: float) -> None:
     torch.testing.assert_close(got, want, rtol=0, atol=1e-6)
     # The default 220 px / 1.32 px geometry leaves few pixels empty at this density, so the check is not vacuous.
     assert (got[:, :, 6] != -1).float().mean() > 0.3
+
+
+@pytest.mark.parametrize("scatter_mode", ["dummy", "spread", "compact"])
+@pytest.mark.parametrize(("S", "r"), [(40, 1.32), (29, 0.6)])
+def test_scatter_modes_match_brute_force_reference(scatter_mode: str, S: int, r: float) -> None:
+    """Every strategy for the candidates outside a disc (CPU default, CUDA default, masked) renders the same."""
+    pts, feats, mask = _random_cloud(B=2, N=700, seed=S + 1)
+    pts[0, 5:9] = float("nan")  # non-finite points are ignored even where the mask keeps them
+    pts[1, 5] = torch.tensor([40.0, -35.0, 1e30])  # far outside every image
+    got = VirtualViewRenderer(img_size=S, radius_px=r, scatter_mode=scatter_mode)(pts, feats, mask)
+    torch.testing.assert_close(
+        got, reference_render(pts, feats, mask & pts.isfinite().all(-1), S, r), rtol=0, atol=1e-6
+    )
+
+
+def test_zbuffer_index_and_depth_match_forward() -> None:
+    """zbuffer(): winners index into N (-1 where empty) and carry their own view depth (+inf where empty)."""
+    pts, feats, mask = _random_cloud(B=2, N=600, seed=11)
+    renderer = VirtualViewRenderer(img_size=36)
+    index, depth = renderer.zbuffer(pts, mask)
+    img = renderer(pts, feats, mask)
+    empty = index < 0
+    assert torch.equal(empty, img[:, :, 6] == -1) and bool(depth[empty].isinf().all())
+    assert bool(mask.gather(1, index.clamp_min(0).flatten(1)).view_as(index)[~empty].all())
+    _, z = project_points(pts, 36)  # (B, N, V) view depths
+    for b in range(2):
+        for v in range(5):
+            win = index[b, v][~empty[b, v]]
+            assert torch.equal(depth[b, v][~empty[b, v]], z[b, win, v])
+            torch.testing.assert_close(img[b, v, 0:3][:, ~empty[b, v]], pts[b, win].t(), rtol=0, atol=0)
 
 
 def test_matches_reference_at_paper_resolution_sparse() -> None:
@@ -184,3 +214,20 @@ def test_bad_shapes_raise() -> None:
         renderer(torch.zeros(1, 4, 3), torch.zeros(1, 4, 3), torch.ones(1, 5, dtype=torch.bool))
     with pytest.raises(ValueError, match="radius_px"):
         VirtualViewRenderer(radius_px=0)
+    with pytest.raises(ValueError, match="scatter_mode"):
+        VirtualViewRenderer(scatter_mode="fast")
+
+
+def test_renders_alternate_between_inference_mode_and_no_grad():
+    """Reused CPU scratch memory must not cross torch.inference_mode() boundaries (eval, then a viewer)."""
+    gen = torch.Generator().manual_seed(0)
+    points = torch.rand(1, 500, 3, generator=gen) * 2 - 1
+    feats = torch.rand(1, 500, 3, generator=gen)
+    renderer = VirtualViewRenderer(img_size=32)
+    with torch.inference_mode():
+        first = renderer(points, feats, None).clone()
+    with torch.no_grad():
+        second = renderer(points, feats, None)
+    with torch.inference_mode():
+        third = renderer(points, feats, None)
+    assert torch.equal(first, second) and torch.equal(second, third)
