@@ -88,6 +88,16 @@ class TextEncoder(nn.Module):
     def _device(self) -> torch.device:
         return next(self.parameters()).device
 
+    def _tokenize(self, instructions: list[str]) -> dict[str, torch.Tensor]:
+        """Token ids (and attention mask) padded/truncated to ``max_length``, on the model's device."""
+        return self.tokenizer(
+            instructions,
+            padding="max_length",
+            truncation=True,
+            max_length=self.max_length,
+            return_tensors="pt",
+        ).to(self._device())
+
 
 class CLIPTextEncoder(TextEncoder):
     """CLIP text tower (``CLIPTokenizer`` + ``CLIPTextModel``) from a local directory or a hub id (offline: the
@@ -107,13 +117,7 @@ class CLIPTextEncoder(TextEncoder):
         self._freeze()
 
     def _encode_uncached(self, instructions: list[str]) -> TextFeatures:
-        batch = self.tokenizer(
-            instructions,
-            padding="max_length",
-            truncation=True,
-            max_length=self.max_length,
-            return_tensors="pt",
-        ).to(self._device())
+        batch = self._tokenize(instructions)
         out = self.model(input_ids=batch["input_ids"])  # no attention mask: as CLIP/Σ (causal attention)
         return TextFeatures(tokens=out.last_hidden_state, sentence=out.pooler_output)
 
@@ -168,13 +172,7 @@ class MiniLMTextEncoder(TextEncoder):
         self._freeze()
 
     def _encode_uncached(self, instructions: list[str]) -> TextFeatures:
-        batch = self.tokenizer(
-            instructions,
-            padding="max_length",
-            truncation=True,
-            max_length=self.max_length,
-            return_tensors="pt",
-        ).to(self._device())
+        batch = self._tokenize(instructions)
         hidden = self.model(**batch).last_hidden_state  # (B, L, 384)
         m = batch["attention_mask"].unsqueeze(-1).to(hidden.dtype)
         mean = (hidden * m).sum(1) / m.sum(1).clamp_min(1e-9)
