@@ -1,0 +1,243 @@
+"""Import demonstrations from other sources into the sigma dense and keyframe datasets.
+
+Every importer turns its source into :class:`~sigma_data.episode.Episode` s and hands them, with a way to get
+each frame's camera views, to one :class:`DatasetSink`; so every source produces the same two LeRobot datasets
+through the same writers as the scripted-expert collector:
+
+* :mod:`sigma_data.importers.hdf5` -- robosuite ``demo.hdf5`` and robomimic HDF5 files, by state replay;
+* :mod:`sigma_data.importers.raw` -- raw real-robot episodes in sigma's documented directory format;
+* :mod:`sigma_data.teleop` -- live teleoperation (uses the same sink).
+
+Bad input in one episode (a missing field, NaN states, a missing image, ...) raises :class:`SourceError`
+naming the file, the episode and the field; the importer records it as a failure and goes on with the next
+episode. Episodes written before stay written: the writers finalize in ``finally``, and a failure inside a
+writer discards only the partial episode. The run ends with :class:`ImportSummary` (one summary line, and
+``<output.dir>/import.json`` with every failure).
+"""
+
+from __future__ import annotations
+
+import json
+import time
+from collections.abc import Callable, Mapping
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from sigma_data.episode import CameraViews, Episode
+from sigma_data.writers import DatasetLayout, DenseWriter, KeyframeWriter, SigmaWriter, StaticCalibration
+
+REPORT = "import.json"
+
+
+class SourceError(ValueError):
+    """Bad input: names the file, the episode (demo) and the field at fault."""
+
+    def __init__(self, path: str | Path, episode: str | None, field: str | None, problem: str):
+        self.path, self.episode, self.field, self.problem = str(path), episode, field, problem
+        where = [self.path]
+        if episode:
+            where.append(episode)
+        if field:
+            where.append(field)
+        super().__init__(f"{': '.join(where)}: {problem}")
+
+
+@dataclass
+class ImportOutputConfig:
+    """Where and how an import writes its datasets: ``<dir>/dense``, ``<dir>/keyframe``, ``<dir>/import.json``."""
+
+    dir: Path = Path("outputs/sigma_import")
+    # LeRobot repo_id prefix (local only): <repo_id>_dense, <repo_id>_keyframe.
+    repo_id: str = "local/sigma_import"
+    # Which datasets to write.
+    dense: bool = True
+    keyframe: bool = True
+    # Camera storage: video (dense default) or PNG/TIFF images (keyframe default; exact depth).
+    dense_video: bool = True
+    keyframe_video: bool = False
+    # RVT-style augmentation chains in the keyframe dataset: an extra episode from every N-th frame (0 = off).
+    augment_every: int = 0
+    # Replace existing datasets under dir (otherwise an existing dataset is an error, never touched).
+    overwrite: bool = False
+
+    def kinds(self) -> list[str]:
+        kinds = [k for k, on in (("dense", self.dense), ("keyframe", self.keyframe)) if on]
+        if not kinds:
+            raise ValueError("nothing to write: enable --output.dense and/or --output.keyframe")
+        return kinds
+
+    def check_writable(self) -> None:
+        """Fail before any work if a target dataset exists and ``overwrite`` is off."""
+        for kind in self.kinds():
+            root = Path(self.dir) / kind
+            if root.exists() and not self.overwrite:
+                raise FileExistsError(f"{root} already exists (pass --output.overwrite=true to replace it)")
+
+
+@dataclass
+class EpisodeFailure:
+    """One source episode that could not be converted."""
+
+    episode: str  # where: "<file>: <demo>" or the episode directory
+    error: str
+
+
+@dataclass
+class ImportSummary:
+    """What an import produced. ``converted``/``failed`` count source episodes."""
+
+    source: str
+    converted: int = 0
+    failed: list[EpisodeFailure] = field(default_factory=list)
+    frames: dict[str, int] = field(default_factory=dict)  # dataset kind -> frames written
+    keyframes: int = 0  # keyframes of the converted episodes
+    outputs: dict[str, str] = field(default_factory=dict)  # dataset kind -> root
+    wall_s: float = 0.0
+
+    def line(self) -> str:
+        parts = [f"import {self.source}: converted {self.converted}, failed {len(self.failed)} episodes"]
+        parts += [f"{kind} {n} frames" for kind, n in self.frames.items()]
+        parts.append(f"{self.keyframes} keyframes")
+        parts.append(f"{self.wall_s:.1f} s")
+        out = ", ".join(parts)
+        return out + (" -> " + ", ".join(self.outputs.values()) if self.outputs else " (nothing written)")
+
+
+ViewsFn = Callable[[int], CameraViews]
+
+
+def stored_views(episode: Episode) -> ViewsFn:
+    """``views(t)`` of an episode with stored camera frames (:attr:`Episode.images`)."""
+    if not episode.images:
+        raise ValueError(f"{episode.name}: no stored images")
+    images = episode.images
+    return lambda t: {cam: stream.frame(t) for cam, stream in images.items()}
+
+
+class DatasetSink:
+    """Writes imported episodes into the dense and/or keyframe datasets under ``output.dir``.
+
+    The writers are opened at the first episode (so a run whose every episode fails writes nothing, rather
+    than an unreadable empty dataset), with that episode's layout and static calibration; later episodes
+    must have the same layout. Use as a context manager: the writers are always finalized and the
+    ``import.json`` report is written, also when the run is interrupted.
+    """
+
+    def __init__(self, output: ImportOutputConfig, source: str, provenance: Mapping[str, Any]):
+        output.check_writable()
+        self.output = output
+        self.summary = ImportSummary(source)
+        self.provenance = dict(provenance)
+        self.writers: dict[str, SigmaWriter] = {}
+        self.layout: DatasetLayout | None = None
+        self._start = time.perf_counter()
+
+    def _open(self, layout: DatasetLayout, static_calibration: StaticCalibration | None) -> None:
+        out = Path(self.output.dir)
+        for kind in self.output.kinds():
+            common: dict[str, Any] = {
+                "layout": layout,
+                "repo_id": f"{self.output.repo_id}_{kind}",
+                "provenance": self.provenance,
+                "static_calibration": static_calibration,
+                "overwrite": self.output.overwrite,
+            }
+            if kind == "dense":
+                self.writers[kind] = DenseWriter(out / kind, use_videos=self.output.dense_video, **common)
+            else:
+                self.writers[kind] = KeyframeWriter(
+                    out / kind,
+                    use_videos=self.output.keyframe_video,
+                    augment_every=self.output.augment_every,
+                    **common,
+                )
+        self.layout = layout
+
+    def open(self, layout: DatasetLayout, static_calibration: StaticCalibration | None = None) -> None:
+        """Open the writers (first call) or check that ``layout`` matches the open datasets."""
+        if self.layout is None:
+            self._open(layout, static_calibration)
+        elif layout != self.layout:
+            raise ValueError(
+                f"cameras/size {layout} differ from the dataset's {self.layout} (one dataset, one camera layout)"
+            )
+
+    def shared_frames(self, episode: Episode) -> set[int]:
+        """Frames of ``episode`` that more than one open writer asks for (worth caching once rendered)."""
+        needed = [set(w.frame_indices(episode)) for w in self.writers.values()]
+        return set.intersection(*needed) if len(needed) > 1 else set()
+
+    def add(
+        self,
+        episode: Episode,
+        views: ViewsFn,
+        layout: DatasetLayout,
+        static_calibration: StaticCalibration | None = None,
+    ) -> None:
+        """Write one episode into every dataset. Raises on failure (the partial episode is discarded)."""
+        self.open(layout, static_calibration)
+        for writer in self.writers.values():
+            writer.add_episode(episode, views)
+        self.summary.converted += 1
+        self.summary.keyframes += len(episode.keyframes)
+
+    def fail(self, episode: str, error: BaseException | str) -> None:
+        """Record a source episode that could not be converted."""
+        self.summary.failed.append(EpisodeFailure(episode, str(error)))
+
+    def close(self) -> ImportSummary:
+        """Finalize every writer (each even if another fails), write the report; returns the summary."""
+        errors: list[BaseException] = []
+        for kind, writer in self.writers.items():
+            try:
+                writer.finalize()
+            except BaseException as exc:
+                errors.append(exc)
+            self.summary.frames[kind] = writer.num_frames
+            self.summary.outputs[kind] = str(writer.root)
+        self.summary.wall_s = time.perf_counter() - self._start
+        out = Path(self.output.dir)
+        out.mkdir(parents=True, exist_ok=True)
+        (out / REPORT).write_text(json.dumps(asdict(self.summary), indent=1))
+        if errors:
+            raise errors[0]
+        return self.summary
+
+    def __enter__(self) -> DatasetSink:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+
+def parse_cameras(cameras: str) -> tuple[str, ...]:
+    """``"a,b"`` -> ``("a", "b")``; ``ValueError`` if empty or duplicated."""
+    cams = tuple(c.strip() for c in cameras.split(",") if c.strip())
+    if not cams:
+        raise ValueError("no cameras given (--cameras)")
+    if len(set(cams)) != len(cams):
+        raise ValueError(f"duplicate camera names in --cameras={cameras}")
+    return cams
+
+
+def finite_or_error(array: np.ndarray, path: str | Path, episode: str, name: str) -> None:
+    """Raise :class:`SourceError` naming the first row of ``array`` with NaN or inf."""
+    bad = ~np.isfinite(np.asarray(array, dtype=np.float64)).reshape(len(array), -1).all(axis=1)
+    if bad.any():
+        rows = np.flatnonzero(bad)
+        raise SourceError(path, episode, name, f"NaN or inf in {len(rows)} row(s), first at row {rows[0]}")
+
+
+__all__ = [
+    "DatasetSink",
+    "EpisodeFailure",
+    "ImportOutputConfig",
+    "ImportSummary",
+    "SourceError",
+    "finite_or_error",
+    "parse_cameras",
+    "stored_views",
+]
