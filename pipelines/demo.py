@@ -18,7 +18,6 @@ from __future__ import annotations
 import json
 import os
 import shutil
-import subprocess
 import sys
 import time
 from dataclasses import dataclass, field
@@ -105,31 +104,19 @@ def validate_stage(outputs: dict[str, Path]) -> dict[str, int]:
 
 
 def train_stage(cfg: DemoConfig, keyframe_root: Path) -> Path:
-    out = cfg.output_dir / "train"
-    cmd = [
-        str(Path(sys.executable).with_name("lerobot-train")),
-        "--policy.type=sigma",
-        "--policy.preset=small",
-        "--policy.device=cpu",
-        f"--dataset.root={keyframe_root}",
-        "--dataset.repo_id=local/sigma_demo_keyframe",
-        "--dataset.video_backend=pyav",
-        f"--output_dir={out}",
-        "--job_name=sigma_demo",
-        f"--steps={cfg.steps}",
-        f"--batch_size={cfg.batch_size}",
-        "--num_workers=0",
-        f"--log_freq={max(1, cfg.steps // 20)}",
-        f"--save_freq={cfg.steps}",
-        "--wandb.enable=false",
-        "--seed=0",
-    ]
-    print("$ " + " ".join(cmd), flush=True)
-    subprocess.run(cmd, check=True)
-    ckpt = out / "checkpoints" / "last" / "pretrained_model"
-    if not (ckpt / "config.json").exists():
-        raise RuntimeError(f"lerobot-train finished without a checkpoint at {ckpt}")
-    return ckpt
+    from pipelines.training import TrainRun, train
+    from sigma_data.tasks import scene_bounds
+
+    run = TrainRun(
+        dataset_root=keyframe_root,
+        output_dir=cfg.output_dir / "train",
+        steps=cfg.steps,
+        batch_size=cfg.batch_size,
+        scene_bounds=scene_bounds(cfg.tasks),
+        job_name="sigma_demo",
+    )
+    checkpoint, _ = train(run)
+    return checkpoint
 
 
 def eval_stage(cfg: DemoConfig, checkpoint: Path, keyframe_root: Path) -> dict:

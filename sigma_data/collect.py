@@ -32,7 +32,7 @@ from collections.abc import Callable
 from concurrent.futures import ProcessPoolExecutor
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
-from typing import Any, Literal
+from typing import Any
 
 import numpy as np
 
@@ -63,28 +63,38 @@ class CollectConfig:
     repo_id: str = "local/sigma"
     # Cameras, comma-separated.
     cameras: str = ",".join(DEFAULT_CAMERAS)
+    # Image height in pixels (every camera).
     height: int = 128
+    # Image width in pixels (every camera).
     width: int = 128
-    # Which datasets to write.
+    # Write the dense dataset (every control step).
     dense: bool = True
+    # Write the keyframe dataset (decision points; action = next keyframe pose).
     keyframe: bool = True
-    # Camera storage: video (dense default) or PNG/TIFF images (keyframe default; exact depth).
+    # Dense camera storage: video (RGB AV1, depth 12-bit lossless HEVC) or PNG/TIFF images.
     dense_video: bool = True
+    # Keyframe camera storage: PNG/TIFF images by default (exact depth) or video.
     keyframe_video: bool = False
     # RVT-style augmentation chains in the keyframe dataset: an extra episode from every N-th frame (0 = off).
     augment_every: int = 0
-    # Rendering: the fast settings (MSAA/reflections/skybox off) and the depth clip, metres.
+    # Render with the fast settings (MSAA/reflections/skybox off: exact depth, ~3x faster).
     fast_render: bool = True
+    # Depth is clipped to this many metres (background pixels hit the far plane, hundreds of metres away).
     max_depth: float = 3.0
-    # Worker processes (each writes its own shards) and seeds per shard.
+    # Worker processes (each writes its own shards).
     workers: int = 1
+    # Seeds per shard (the unit of resume: a finished shard that validates is reused).
     shard_size: int = 10
     # Seed of the random model parameters drawn when an env is built (e.g. Lift's cube size).
     model_seed: int = 0
-    # "processes" (a process pool) or "datatrove" (DataTrove's local executor; optional dependency).
-    executor: Literal["processes", "datatrove"] = "processes"
+    # How shards run: "processes" (a process pool) or "datatrove" (DataTrove's local executor; optional extra).
+    executor: str = "processes"
     # Show progress bars.
     progress: bool = True
+
+    def __post_init__(self) -> None:
+        if self.executor not in ("processes", "datatrove"):
+            raise ValueError(f"--executor must be processes or datatrove, got {self.executor!r}")
 
     def camera_list(self) -> tuple[str, ...]:
         cams = tuple(c.strip() for c in self.cameras.split(",") if c.strip())
@@ -554,9 +564,11 @@ def _typed_parquet_writes(features: dict[str, dict]):
 
 def merge_shards(kind: str, shard_roots: list[Path], out: Path, repo_id: str) -> None:
     """Merge shard datasets of one kind with LeRobot's ``aggregate_datasets`` and merge their sidecars."""
+    from datasets import disable_progress_bars
     from lerobot.datasets.aggregate import aggregate_datasets
     from lerobot.datasets.dataset_metadata import LeRobotDatasetMetadata
 
+    disable_progress_bars()  # LeRobot's own "Copy data and videos" bar stays; the per-file "Map" bars go
     if out.exists():
         shutil.rmtree(out)
     features = LeRobotDatasetMetadata(repo_id, root=shard_roots[0]).features

@@ -27,14 +27,30 @@ def configure_mujoco_gl() -> str:
     return backend
 
 
-def quiet_robosuite() -> None:
-    """Silence robosuite's per-env start-up warnings (controller parts a Panda does not have, mink IK).
+class _BelowErrorFilter:
+    """Drops robosuite log records below ERROR (its start-up notes about optional parts)."""
 
-    robosuite logs them through its own ``robosuite_logs`` logger at every ``suite.make``; errors still show.
+    def filter(self, record) -> bool:
+        import logging
+
+        return record.levelno >= logging.ERROR
+
+
+_FILTER = _BelowErrorFilter()
+
+
+def quiet_robosuite() -> None:
+    """Silence robosuite's start-up warnings (no private macro file, robosuite_models, mink IK, controller
+    parts a Panda does not have); errors still show.
+
+    robosuite logs them through its own ``robosuite_logs`` logger, at import and at every ``suite.make``. A filter
+    on that logger works before robosuite is imported (``import sigma_data`` installs it), so even the import-time
+    notes disappear. ``SIGMA_ROBOSUITE_WARNINGS=1`` keeps them.
     """
     import logging
 
+    if os.environ.get("SIGMA_ROBOSUITE_WARNINGS") == "1":
+        return
     logger = logging.getLogger("robosuite_logs")
-    logger.setLevel(logging.ERROR)
-    for handler in logger.handlers:
-        handler.setLevel(logging.ERROR)
+    if _FILTER not in logger.filters:
+        logger.addFilter(_FILTER)

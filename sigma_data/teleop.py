@@ -313,28 +313,41 @@ class TeleopSession:
 class TeleopConfig:
     """Options of ``sigma-data import teleop``."""
 
-    # Registry task and variation (None = its first variation).
+    # Registry task.
     task: str = "lift"
+    # Variation of the task (None = its first variation).
     variation: str | None = None
-    # robosuite input device: keyboard or spacemouse.
-    device: Literal["keyboard", "spacemouse"] = "keyboard"
+    # robosuite input device: "keyboard" or "spacemouse".
+    device: str = "keyboard"
+    # Scale of the device's translation commands.
     pos_sensitivity: float = 1.0
+    # Scale of the device's rotation commands.
     rot_sensitivity: float = 1.0
     # Stop after this many kept episodes (or Esc).
     episodes: int = 10
+    # Seed of the first episode's scene (then +1 per episode).
     start_seed: int = 0
     # Control steps before an episode times out (and is discarded).
     max_steps: int = 2000
-    # Keyframes: manual (marks + gripper changes + last), heuristic (ARM), or union.
-    keyframes: KeyframeMode = "manual"
+    # Keyframes: "manual" (marks + gripper changes + last), "heuristic" (ARM), or "union".
+    keyframes: str = "manual"
     # Show robosuite's on-screen viewer (needs a display).
     viewer: bool = True
+    # Cameras to render into the datasets, comma-separated.
     cameras: str = "agentview,frontview,birdview,robot0_eye_in_hand"
+    # Image height in pixels.
     height: int = 128
+    # Image width in pixels.
     width: int = 128
     output: ImportOutputConfig = field(
         default_factory=lambda: ImportOutputConfig(dir=Path("outputs/sigma_teleop"))
     )
+
+    def __post_init__(self) -> None:
+        if self.device not in ("keyboard", "spacemouse"):
+            raise ValueError(f"--device must be keyboard or spacemouse, got {self.device!r}")
+        if self.keyframes not in ("manual", "heuristic", "union"):
+            raise ValueError(f"--keyframes must be manual, heuristic or union, got {self.keyframes!r}")
 
 
 def outcome_line(outcomes: Sequence[EpisodeOutcome]) -> str:

@@ -174,9 +174,13 @@ class SigmaWriter:
         image_writer_threads: int = 0,
         overwrite: bool = False,
     ):
+        from datasets import disable_progress_bars
         from lerobot.configs.video import DepthEncoderConfig
         from lerobot.datasets.lerobot_dataset import LeRobotDataset
 
+        # LeRobot maps every saved episode through `datasets`, which draws a "Map" bar each time; sigma's own
+        # progress bars (per episode / shard) say the same thing once.
+        disable_progress_bars()
         self.root = Path(root)
         self.layout = layout
         if self.root.exists():

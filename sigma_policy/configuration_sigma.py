@@ -11,6 +11,7 @@ from the preset in ``__post_init__``; a field given explicitly (CLI or ``config.
 | view / query / fusion layers | 2 / 2 / 4 | 1 / 1 / 2 |
 | decoder_kernel | 11 | 3 |
 | attn_dropout | 0.1 | 0.0 |
+| use_proprio | False (Σ code) | True (see choice 6) |
 | optimizer_lr, warm-up, decay steps | 9.6e-4, 2000, 25000 | 3e-3, 20, 2000 |
 
 ``paper`` has 38.26 M parameters with the contrastive heads and 36.03 M at inference (with 77 x 512 CLIP tokens;
@@ -30,8 +31,11 @@ Paper-vs-code discrepancies (model_spec §12), each a field; default and reason:
    never masks: two states with the same instruction still have different goals.
 5. Goal — the next keyframe (code and paper's main text): fixed by the keyframe dataset via
    ``observation_delta_indices=[0, 1]``; no field.
-6. Proprio — ``use_proprio=False`` (Σ code). ``True`` adds one token from ``observation.state``
+6. Proprio — ``use_proprio``: ``False`` in ``paper`` (Σ code); ``True`` adds one token from ``observation.state``
    [gripper_open, finger_q1, finger_q2] to the fusion sequence (a sigma variant, not RVT-1's channel concat).
+   ``small`` turns it on: its 64² virtual views barely resolve the fingers, so without it the policy cannot
+   tell "about to grasp" from "just grasped" and repeats the grasp keyframe (seen in the first demo runs;
+   with proprio and the task's scene box, Lift from 12 demos and 400 steps succeeds in 7 of 10 episodes).
 7. Temperature — learnable, ``logit_scale_init=log(1/0.07)``, ``logit_scale_max=None`` (code: unclamped;
    CLIP clamps the scale at 100).
 8. Projection heads — ``projection_activation=True`` (code: Linear + LeakyReLU before L2 normalisation);
@@ -57,8 +61,10 @@ ignore_collision], an absolute world-frame next-keyframe pose (quaternion xyzw, 
 
 from __future__ import annotations
 
+import json
 import math
 from dataclasses import dataclass, field, fields
+from pathlib import Path
 from typing import Any
 
 from lerobot.configs.policies import PreTrainedConfig
@@ -82,6 +88,7 @@ PRESETS: dict[str, dict[str, Any]] = {
         "num_fusion_layers": 4,
         "decoder_kernel": 11,
         "attn_dropout": 0.1,
+        "use_proprio": False,
         "optimizer_lr": 9.6e-4,
         "scheduler_warmup_steps": 2000,
         "scheduler_decay_steps": 25000,
@@ -99,6 +106,7 @@ PRESETS: dict[str, dict[str, Any]] = {
         "num_fusion_layers": 2,
         "decoder_kernel": 3,
         "attn_dropout": 0.0,
+        "use_proprio": True,
         "optimizer_lr": 3e-3,
         "scheduler_warmup_steps": 20,
         "scheduler_decay_steps": 2000,
@@ -106,6 +114,8 @@ PRESETS: dict[str, dict[str, Any]] = {
 }
 
 ACTION_DIM = 9
+# A 1 m box over robosuite's table (x toward the robot's front, z up; the table top is at z = 0.8 m).
+DEFAULT_SCENE_BOUNDS = [-0.4, -0.55, 0.75, 0.6, 0.5, 1.75]
 CALIBRATION_PREFIX = "observation.camera."
 IMAGE_PREFIX = "observation.images."
 DEPTH_SUFFIX = "_depth"
@@ -143,7 +153,7 @@ class SigmaConfig(PreTrainedConfig):
     query_attention: str = "self"
     bc_lambda: float = 0.5
     mask_same_instruction: bool = True
-    use_proprio: bool = False
+    use_proprio: bool | None = None  # None = from preset (paper False, small True)
     logit_scale_init: float = math.log(1 / 0.07)
     logit_scale_max: float | None = None
     projection_activation: bool = True
@@ -158,7 +168,9 @@ class SigmaConfig(PreTrainedConfig):
     depth_unit: str = (
         "mm"  # LeRobotDataset's default depth_output_unit; "m" with --dataset.depth_output_unit=m
     )
-    scene_bounds: list[float] = field(default_factory=lambda: [-0.4, -0.55, 0.75, 0.6, 0.5, 1.75])
+    # None = the union of the task boxes in the training dataset's meta/sigma.json ("bounds"), else
+    # DEFAULT_SCENE_BOUNDS; resolved when the policy is built for training and saved with the checkpoint.
+    scene_bounds: list[float] | None = None
     text_encoder: str = "minilm"
     text_encoder_path: str | None = None
 
@@ -199,8 +211,9 @@ class SigmaConfig(PreTrainedConfig):
         for name, value in PRESETS[self.preset].items():
             if getattr(self, name) is None:
                 setattr(self, name, value)
-        if len(self.scene_bounds) != 6 or any(
-            hi <= lo for lo, hi in zip(self.scene_bounds[:3], self.scene_bounds[3:], strict=True)
+        if self.scene_bounds is not None and (
+            len(self.scene_bounds) != 6
+            or any(hi <= lo for lo, hi in zip(self.scene_bounds[:3], self.scene_bounds[3:], strict=True))
         ):
             raise ValueError(
                 f"policy.scene_bounds must be (xmin, ymin, zmin, xmax, ymax, zmax), got {self.scene_bounds}"
@@ -289,6 +302,25 @@ class SigmaConfig(PreTrainedConfig):
             and not key.endswith(DEPTH_SUFFIX)
             and f"{key}{DEPTH_SUFFIX}" in feats
         )
+
+    def resolve_scene_bounds(self, dataset_root: str | Path | None = None) -> list[float]:
+        """Fill ``scene_bounds`` when unset: the union of the task boxes a sigma dataset records in
+        ``meta/sigma.json`` (``"bounds": {task: box}``), else :data:`DEFAULT_SCENE_BOUNDS`. Returns the box."""
+        if self.scene_bounds is None:
+            boxes = []
+            if dataset_root is not None:
+                sidecar = Path(dataset_root) / "meta" / "sigma.json"
+                try:
+                    boxes = list(json.loads(sidecar.read_text()).get("bounds", {}).values())
+                except (OSError, ValueError):
+                    boxes = []
+            if boxes:
+                lo = [min(b[i] for b in boxes) for i in range(3)]
+                hi = [max(b[i] for b in boxes) for i in range(3, 6)]
+                self.scene_bounds = [float(v) for v in lo + hi]
+            else:
+                self.scene_bounds = list(DEFAULT_SCENE_BOUNDS)
+        return self.scene_bounds
 
     def network_config(self) -> NetworkConfig:
         """Architecture numbers for ``SigmaNetwork`` (language dimensions come from the text encoder)."""

@@ -80,8 +80,9 @@ class SigmaPolicy(PreTrainedPolicy):
         self, config: SigmaConfig, dataset_stats: dict | None = None, dataset_meta: Any = None, **kwargs
     ):
         super().__init__(config)
-        del dataset_stats, dataset_meta, kwargs  # no statistics needed: the scene box is the normalisation
+        del dataset_stats, kwargs  # no statistics needed: the scene box is the normalisation
         config.validate_features()
+        config.resolve_scene_bounds(getattr(dataset_meta, "root", None))
         self.config: SigmaConfig = config
         self.cameras = config.camera_names()
         self._depth_checked = False

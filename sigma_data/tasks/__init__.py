@@ -8,6 +8,16 @@ from sigma_data.tasks.registry import (
     get_variation,
     make_env,
     reset_env,
+    scene_bounds,
 )
 
-__all__ = ["TASKS", "TaskSpec", "Variation", "get_task", "get_variation", "make_env", "reset_env"]
+__all__ = [
+    "TASKS",
+    "TaskSpec",
+    "Variation",
+    "get_task",
+    "get_variation",
+    "make_env",
+    "reset_env",
+    "scene_bounds",
+]

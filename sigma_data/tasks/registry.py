@@ -221,6 +221,18 @@ def get_task(name: str) -> TaskSpec:
         raise ValueError(f"unknown task '{name}'; known tasks: {', '.join(sorted(TASKS))}") from None
 
 
+def scene_bounds(task_names: Sequence[str]) -> tuple[float, ...]:
+    """The smallest box holding the workspace bounds of every named task: the policy's ``scene_bounds``.
+
+    Train a multi-task policy on this box (``--policy.scene_bounds``); a box much larger than the workspace
+    wastes virtual-view pixels (the ``small`` policy's 64² views then resolve ~1.6 cm instead of ~0.9 cm).
+    """
+    if not task_names:
+        raise ValueError("scene_bounds needs at least one task name")
+    boxes = np.array([get_task(name).bounds for name in task_names], dtype=float)
+    return (*map(float, boxes[:, :3].min(0)), *map(float, boxes[:, 3:].max(0)))
+
+
 def get_variation(task: TaskSpec, name: str) -> Variation:
     """The variation of ``task`` called ``name``; ``ValueError`` listing its variations otherwise."""
     for variation in task.variations:

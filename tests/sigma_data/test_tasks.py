@@ -118,3 +118,16 @@ def test_same_seed_gives_same_state_in_a_fresh_env():
         finally:
             env.close()
     np.testing.assert_array_equal(states[0], states[1])
+
+
+def test_scene_bounds_is_the_union_of_the_task_boxes():
+    from sigma_data.tasks import scene_bounds
+
+    assert scene_bounds(["lift"]) == get_task("lift").bounds
+    box = scene_bounds(["lift", "pick_place"])
+    for name in ("lift", "pick_place"):
+        lo, hi = np.array(get_task(name).bounds[:3]), np.array(get_task(name).bounds[3:])
+        assert np.all(np.array(box[:3]) <= lo) and np.all(np.array(box[3:]) >= hi)
+    assert box == get_task("pick_place").bounds  # Lift's box lies inside PickPlace's
+    with pytest.raises(ValueError, match="unknown task"):
+        scene_bounds(["lift", "juggle"])

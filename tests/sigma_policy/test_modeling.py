@@ -144,20 +144,39 @@ def test_missing_calibration_feature_is_reported(tiny_root):
 
 
 # ------------------------------------------------------------------------------------------------ learning
-def train(policy, pre, ds, indices: list[int], steps: int, batch_size: int = 8, seed: int = 0) -> None:
+def train(
+    policy,
+    pre,
+    ds,
+    indices: list[int],
+    steps: int,
+    batch_size: int = 8,
+    seed: int = 0,
+    distinct: bool = False,
+) -> list[dict[str, float]]:
+    """Train with the policy's own optimiser and schedule presets; return the logged loss parts per step.
+
+    ``distinct`` draws each batch without replacement (no duplicate sample acting as its own negative).
+    """
     torch.manual_seed(seed)
     cfg = policy.config
     opt = cfg.get_optimizer_preset().build(policy.get_optim_params())
     sched = cfg.get_scheduler_preset().build(opt, num_training_steps=steps)
     policy.train()
+    log = []
     for _ in range(steps):
-        pick = torch.randint(0, len(indices), (batch_size,)).tolist()
-        loss, _ = policy.forward(pre(training_batch(ds, [indices[i] for i in pick])))
+        if distinct:
+            pick = torch.randperm(len(indices))[:batch_size].tolist()
+        else:
+            pick = torch.randint(0, len(indices), (batch_size,)).tolist()
+        loss, info = policy.forward(pre(training_batch(ds, [indices[i] for i in pick])))
         opt.zero_grad()
         loss.backward()
         opt.step()
         sched.step()
+        log.append(info)
     policy.eval()
+    return log
 
 
 def translation_errors(policy, pre, root: Path, indices: list[int]) -> torch.Tensor:
@@ -211,3 +230,52 @@ def test_prediction_follows_the_instruction(tmp_path):
         other = preds[next(t for t in preds if t != item["task"])]
         assert (own - item["action"][:3]).norm() < 0.03, (i, item["task"], own, item["action"][:3])
         assert (other - own).norm() > 0.1  # the other instruction points at the other cube (~28 cm away)
+
+
+@pytest.mark.slow
+def test_contrastive_loss_falls_well_below_chance(tmp_path):
+    """The full policy's (state, language) <-> goal InfoNCE, from rendered clouds to features, learns.
+
+    Eight episodes with the cube at different places: each sample's goal (the next keyframe) identifies its
+    episode. Augmentation is off so that the goal render keeps the cube where the current one has it (with
+    independent SE(3) draws on a single-task scene, goals of the same stage differ only by the random
+    transform, and the term cannot go far below log(batch)).
+    """
+    root = write_tiny_keyframe_dataset(tmp_path / "tiny", episodes=8, size=48)
+    _, policy, pre, _, ds = build(root, image_noise=0.0, aug_translation_range=0.0, aug_yaw_range_deg=0.0)
+    idx = sample_indices(ds)
+    batch = 8
+    log = train(policy, pre, ds, idx, steps=250, batch_size=batch, distinct=True)
+    chance = math.log(batch)
+    first = sum(s["contrastive_goal_loss"] for s in log[:5]) / 5
+    last = sum(s["contrastive_goal_loss"] for s in log[-10:]) / 10
+    assert first > 0.8 * chance  # it starts near chance ...
+    assert last < 0.5 * chance, (first, last)  # ... and ends well below it
+
+
+def test_scene_box_comes_from_the_dataset_sidecar_when_unset(tmp_path):
+    import json
+
+    root = write_tiny_keyframe_dataset(tmp_path / "tiny", episodes=1, size=32)
+    sidecar = root / "meta" / "sigma.json"
+    side = json.loads(sidecar.read_text()) if sidecar.exists() else {}
+    side["bounds"] = {"a": [-0.3, -0.2, 0.7, 0.3, 0.3, 1.3], "b": [-0.4, -0.3, 0.75, 0.2, 0.35, 1.2]}
+    sidecar.write_text(json.dumps(side))
+    probe = LeRobotDataset("local/sigma_tiny", root=root)
+
+    cfg = SigmaConfig(device="cpu", **FAST)
+    assert cfg.scene_bounds is None
+    policy = make_policy(cfg, ds_meta=probe.meta)
+    assert cfg.scene_bounds == pytest.approx([-0.4, -0.3, 0.7, 0.3, 0.35, 1.3])  # the union, saved in config
+    assert policy.scene_bounds.tolist() == pytest.approx(cfg.scene_bounds)
+
+    given = SigmaConfig(device="cpu", scene_bounds=list(BOUNDS), **FAST)
+    make_policy(given, ds_meta=probe.meta)
+    assert given.scene_bounds == list(BOUNDS)  # an explicit box always wins
+
+    sidecar.unlink()
+    bare = SigmaConfig(device="cpu", **FAST)
+    make_policy(bare, ds_meta=LeRobotDataset("local/sigma_tiny", root=root).meta)
+    from sigma_policy.configuration_sigma import DEFAULT_SCENE_BOUNDS
+
+    assert bare.scene_bounds == DEFAULT_SCENE_BOUNDS

@@ -1,0 +1,281 @@
+"""``sigma-ablate``: does the contrastive loss help? The paper's ablation, on robosuite, with honest intervals.
+
+Two arms share everything but the loss: the same keyframe dataset (collected once by the scripted experts), the
+same training seed, steps, batch size and scene box, and the same evaluation seeds:
+
+* ``contrastive`` — the Σ-agent policy (``--policy.use_contrastive=true``: BC + state↔language and
+  (state, language)↔goal InfoNCE, λ = ``bc_lambda``);
+* ``baseline`` — the RVT-style policy (``--policy.use_contrastive=false``: BC only).
+
+The default task subset is the one where the instruction decides success (Stack in both orders, PickPlace
+with four objects on the table), so a policy that ignores language cannot exceed chance. Both arms train with
+the stock ``lerobot-train`` (in parallel, one process per arm, the cores split between them) and are evaluated
+closed-loop by ``sigma-eval``. The report (success per variation with Wilson 95% intervals, the last logged
+losses, training time) goes to ``<output_dir>/ablation.md`` and, with ``--publish true``, to
+``benchmarks/results/ablation.md`` for ``RESULTS.md``.
+
+Every stage resumes: collection skips finished shards, an arm with a finished checkpoint is not retrained,
+an arm with evaluation results is not re-evaluated (``--fresh true`` starts over).
+
+    sigma-ablate                                   # defaults: 10 demos/variation, 1500 steps, 10 eval episodes
+    sigma-ablate --steps 200 --eval_episodes 2     # a quick look
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+import shutil
+import sys
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import draccus
+
+os.environ.setdefault("HF_HUB_OFFLINE", "1")
+
+ARMS: dict[str, list[str]] = {
+    "baseline": ["--policy.use_contrastive=false"],
+    "contrastive": ["--policy.use_contrastive=true"],
+}
+
+
+@dataclass
+class AblationConfig:
+    """Options of ``sigma-ablate``."""
+
+    output_dir: Path = Path("outputs/ablation")
+    # Tasks (all their variations); the default is where language decides success.
+    tasks: list[str] = field(default_factory=lambda: ["stack", "pick_place"])
+    # Expert seeds collected per variation (failed expert episodes are dropped), and camera set-up.
+    episodes: int = 10
+    cameras: list[str] = field(
+        default_factory=lambda: ["agentview", "frontview", "birdview", "robot0_eye_in_hand"]
+    )
+    image_size: int = 64
+    # The training budget, identical for both arms.
+    preset: str = "small"
+    steps: int = 1500
+    batch_size: int = 8
+    seed: int = 0
+    device: str = "cpu"
+    # Evaluation episodes per variation (seeds from 100000, disjoint from the collection seeds).
+    eval_episodes: int = 10
+    max_keyframes: int = 10
+    # Worker processes for collection and evaluation; the two arms train side by side with cores split.
+    workers: int = 2
+    # Discard previous checkpoints and evaluations (the collected data is always reused when it is complete).
+    fresh: bool = False
+    # Also write benchmarks/results/ablation.md (+ .json), the fragment RESULTS.md includes.
+    publish: bool = False
+
+
+def collect_stage(cfg: AblationConfig) -> Path:
+    from sigma_data.collect import CollectConfig, collect
+
+    summary = collect(
+        CollectConfig(
+            tasks=",".join(cfg.tasks),
+            episodes=cfg.episodes,
+            output_dir=cfg.output_dir / "data",
+            repo_id="local/sigma_ablation",
+            cameras=",".join(cfg.cameras),
+            height=cfg.image_size,
+            width=cfg.image_size,
+            dense=False,
+            workers=cfg.workers,
+            progress=False,
+        )
+    )
+    print(summary.line(), flush=True)
+    if summary.kept == 0:
+        raise RuntimeError("the experts produced no successful episode; nothing to train on")
+    return summary.outputs["keyframe"]
+
+
+def train_stage(cfg: AblationConfig, dataset: Path) -> dict[str, dict]:
+    """Train both arms side by side (resuming finished ones); return per-arm checkpoint, seconds, metrics."""
+    from pipelines.training import TrainRun, last_logged_metrics, start, wait
+    from sigma_data.tasks import scene_bounds
+
+    box = scene_bounds(cfg.tasks)
+    runs = {
+        arm: TrainRun(
+            dataset_root=dataset,
+            output_dir=cfg.output_dir / "train" / arm,
+            steps=cfg.steps,
+            batch_size=cfg.batch_size,
+            scene_bounds=box,
+            preset=cfg.preset,
+            device=cfg.device,
+            seed=cfg.seed,
+            job_name=f"ablation_{arm}",
+            extra_args=args,
+        )
+        for arm, args in ARMS.items()
+    }
+    cores = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count() or 1
+    threads = max(1, cores // len(runs))
+    results: dict[str, dict] = {}
+    procs = {}
+    for arm, run in runs.items():
+        done = cfg.output_dir / "train" / f"{arm}.json"
+        if done.exists() and (run.checkpoint / "config.json").exists():
+            results[arm] = json.loads(done.read_text())
+            print(f"{arm}: reusing the finished run in {run.output_dir}", flush=True)
+            continue
+        if run.output_dir.exists():
+            shutil.rmtree(run.output_dir)  # lerobot-train refuses an existing output dir without --resume
+        log = cfg.output_dir / "train" / f"{arm}.log"
+        print(
+            f"{arm}: lerobot-train {cfg.steps} steps x batch {cfg.batch_size}, {threads} thread(s); log {log}"
+        )
+        procs[arm] = (start(run, log, threads=threads), log, time.perf_counter())
+    for arm, (proc, log, t0) in procs.items():
+        ckpt = wait(runs[arm], proc, log)
+        results[arm] = {
+            "checkpoint": str(ckpt),
+            "train_seconds": time.perf_counter() - t0,
+            "last_metrics": last_logged_metrics(log),
+            "threads": threads,
+        }
+        (cfg.output_dir / "train" / f"{arm}.json").write_text(json.dumps(results[arm], indent=2))
+        print(f"{arm}: trained in {results[arm]['train_seconds']:.0f} s", flush=True)
+    return results
+
+
+def eval_stage(cfg: AblationConfig, dataset: Path, trained: dict[str, dict]) -> dict[str, dict]:
+    from pipelines.evaluate import EvalConfig, markdown_table, run_eval
+
+    summaries = {}
+    for arm, info in trained.items():
+        out = cfg.output_dir / "eval" / arm
+        cached = out / "results.json"
+        if cached.exists():
+            summaries[arm] = json.loads(cached.read_text())
+            print(f"{arm}: reusing the evaluation in {out}", flush=True)
+            continue
+        print(f"{arm}: sigma-eval, {cfg.eval_episodes} episodes per variation", flush=True)
+        summaries[arm] = run_eval(
+            EvalConfig(
+                checkpoint=Path(info["checkpoint"]),
+                tasks=cfg.tasks,
+                episodes=cfg.eval_episodes,
+                train_dataset=dataset,
+                max_keyframes=cfg.max_keyframes,
+                workers=cfg.workers,
+                device=cfg.device,
+                output_dir=out,
+            )
+        )
+        print(markdown_table(summaries[arm]), flush=True)
+    return summaries
+
+
+def _pct(row: dict) -> str:
+    lo, hi = row["ci95"]
+    return f"{row['successes']}/{row['episodes']} ({100 * row['success_rate']:.0f}%, {100 * lo:.0f}–{100 * hi:.0f}%)"
+
+
+def report(cfg: AblationConfig, dataset: Path, trained: dict[str, dict], evals: dict[str, dict]) -> str:
+    """The Markdown comparison: per variation, both arms with Wilson 95% intervals, then training facts."""
+    from sigma_data.writers import read_sidecar
+
+    rows = {arm: {(r["task"], r["variation"]): r for r in s["variations"]} for arm, s in evals.items()}
+    keys = sorted(set().union(*(r.keys() for r in rows.values())))
+    lines = [
+        "| task | variation | baseline (BC only) | contrastive (Σ-agent) |",
+        "|---|---|---|---|",
+    ]
+    for key in keys:
+        cells = [_pct(rows[arm][key]) if key in rows[arm] else "-" for arm in ("baseline", "contrastive")]
+        lines.append(f"| {key[0]} | {key[1]} | {cells[0]} | {cells[1]} |")
+    means = [f"**{100 * evals[arm]['mean_success']:.1f}%**" for arm in ("baseline", "contrastive")]
+    lines.append(f"| **mean** | | {means[0]} | {means[1]} |")
+
+    n_eps = (read_sidecar(dataset) or {}).get("num_episodes", "?")
+    facts = [
+        "",
+        "| arm | training wall time | last logged losses |",
+        "|---|---|---|",
+    ]
+    for arm in ("baseline", "contrastive"):
+        m = trained[arm].get("last_metrics", {})
+        parts = [
+            f"{k} {m[k]:.3f}"
+            for k in (
+                "bc_loss",
+                "trans_loss",
+                "rot_loss",
+                "contrastive_sl_loss",
+                "contrastive_goal_loss",
+                "logit_scale",
+            )
+            if k in m
+        ]
+        lines_t = (
+            f"{trained[arm]['train_seconds'] / 60:.1f} min ({trained[arm].get('threads', '?')} thread(s))"
+        )
+        facts.append(f"| {arm} | {lines_t} | {', '.join(parts) or '-'} |")
+    seeds = next(iter(evals.values()))["variations"][0]["seeds"]
+    setup = (
+        f"Data: {n_eps} expert episodes ({cfg.episodes} seeds per variation from 0, failed expert runs dropped), "
+        f"{len(cfg.cameras)} cameras at {cfg.image_size}² ({', '.join(cfg.cameras)}), keyframe dataset "
+        f"`{dataset}`. Training: `{cfg.preset}` preset, {cfg.steps} steps × batch {cfg.batch_size}, seed "
+        f"{cfg.seed}, {cfg.device}, scene box of the tasks; the arms differ only in `--policy.use_contrastive`. "
+        f"Evaluation: {cfg.eval_episodes} episodes per variation, seeds {seeds[0]}–{seeds[-1]} (disjoint from "
+        f"the training seeds), at most {cfg.max_keyframes} keyframes per episode. Chance of the goal InfoNCE "
+        f"term: log(batch) = {math.log(cfg.batch_size):.3f}."
+    )
+    return "\n".join([setup, "", *lines, *facts])
+
+
+def run_ablation(cfg: AblationConfig) -> str:
+    import sigma_data  # noqa: F401  (MUJOCO_GL before robosuite)
+
+    cfg.output_dir = Path(cfg.output_dir)
+    if cfg.fresh:
+        for sub in ("train", "eval"):
+            shutil.rmtree(cfg.output_dir / sub, ignore_errors=True)
+    cfg.output_dir.mkdir(parents=True, exist_ok=True)
+    t0 = time.perf_counter()
+    print("=== 1/3 collect (scripted experts -> keyframe dataset) ===", flush=True)
+    dataset = collect_stage(cfg)
+    print("\n=== 2/3 train both arms (lerobot-train) ===", flush=True)
+    trained = train_stage(cfg, dataset)
+    print("\n=== 3/3 evaluate both arms (sigma-eval) ===", flush=True)
+    evals = eval_stage(cfg, dataset, trained)
+    text = report(cfg, dataset, trained, evals)
+    (cfg.output_dir / "ablation.md").write_text(text + "\n")
+    (cfg.output_dir / "ablation.json").write_text(
+        json.dumps({"config": draccus.encode(cfg), "trained": trained, "eval": evals}, indent=1, default=str)
+    )
+    if cfg.publish:
+        from pipelines.reporting import write_report
+
+        write_report(
+            "ablation",
+            "Contrastive-loss ablation (same data, seeds and budget)",
+            text,
+            {"trained": trained, "eval": {arm: s["variations"] for arm, s in evals.items()}},
+        )
+    print("\n" + text)
+    b, c = (100 * evals[arm]["mean_success"] for arm in ("baseline", "contrastive"))
+    print(
+        f"\nsigma-ablate: baseline {b:.1f}% vs contrastive {c:.1f}% mean success over "
+        f"{len(evals['baseline']['variations'])} variations in {(time.perf_counter() - t0) / 60:.1f} min "
+        f"-> {cfg.output_dir}/ablation.md"
+    )
+    return text
+
+
+def main(argv: list[str] | None = None) -> int:
+    cfg = draccus.parse(AblationConfig, args=sys.argv[1:] if argv is None else argv)
+    run_ablation(cfg)
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

@@ -1,0 +1,87 @@
+"""Shared result writing for the benchmarks: one Markdown fragment + one JSON file per benchmark.
+
+Every benchmark that feeds ``RESULTS.md`` calls :func:`write_report` with its table; the fragment starts with
+the command that produced it and a description of the machine, so a number is never separated from how it was
+measured. ``sigma-results`` (``pipelines.results``) stitches the fragments into ``RESULTS.md``.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import platform
+import shlex
+import sys
+import time
+from pathlib import Path
+from typing import Any
+
+RESULTS_DIR = Path(__file__).resolve().parent.parent / "benchmarks" / "results"
+
+
+def machine_description() -> str:
+    """One line: CPU model, cores usable by this process, memory, Python, torch and GPU (if any)."""
+    cpu = platform.processor() or platform.machine()
+    try:
+        for line in Path("/proc/cpuinfo").read_text().splitlines():
+            if line.startswith("model name"):
+                cpu = line.split(":", 1)[1].strip()
+                break
+    except OSError:
+        pass
+    cores = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count()
+    mem = ""
+    try:
+        kb = int(Path("/proc/meminfo").read_text().split()[1])
+        mem = f", {kb / 2**20:.0f} GiB RAM"
+    except (OSError, ValueError, IndexError):
+        pass
+    parts = [f"{cpu}, {cores} cores{mem}", f"Python {platform.python_version()}"]
+    try:
+        import torch
+
+        parts.append(f"torch {torch.__version__}")
+        if torch.cuda.is_available():
+            parts.append(torch.cuda.get_device_name(0))
+        else:
+            parts.append("no GPU")
+    except ImportError:
+        pass
+    return "; ".join(parts)
+
+
+def command_line() -> str:
+    """The command that is running, as a user would type it (``python -m benchmarks.x --flag v``)."""
+    main = sys.modules.get("__main__")
+    spec = getattr(main, "__spec__", None)
+    head = f"python -m {spec.name}" if spec is not None and spec.name else f"python {sys.argv[0]}"
+    return " ".join([head, *map(shlex.quote, sys.argv[1:])])
+
+
+def write_report(
+    name: str,
+    title: str,
+    markdown: str,
+    data: Any,
+    notes: str = "",
+    results_dir: Path | None = None,
+) -> Path:
+    """Write ``<results_dir>/<name>.md`` (title, command, machine, date, table, notes) and ``<name>.json``.
+
+    Returns the Markdown path. ``data`` must be JSON-serialisable (the raw numbers behind the table).
+    """
+    out = Path(results_dir or RESULTS_DIR)
+    out.mkdir(parents=True, exist_ok=True)
+    header = (
+        f"## {title}\n\n"
+        f"Command: `{command_line()}`\n\n"
+        f"Machine: {machine_description()}; measured {time.strftime('%Y-%m-%d')}.\n\n"
+    )
+    text = header + markdown.strip() + "\n" + (f"\n{notes.strip()}\n" if notes.strip() else "")
+    md_path = out / f"{name}.md"
+    md_path.write_text(text)
+    payload = {"name": name, "title": title, "command": command_line(), "machine": machine_description()}
+    payload["date"] = time.strftime("%Y-%m-%d")
+    payload["data"] = data
+    (out / f"{name}.json").write_text(json.dumps(payload, indent=1, default=str) + "\n")
+    return md_path

@@ -1,0 +1,108 @@
+"""Run the stock ``lerobot-train`` on a sigma keyframe dataset (used by the demo and the ablation).
+
+Training always goes through LeRobot's own CLI in a subprocess, exactly as a user would run it, so what the
+pipelines measure is what ``lerobot-train --policy.type=sigma`` does.
+"""
+
+from __future__ import annotations
+
+import os
+import re
+import subprocess
+import sys
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+
+
+@dataclass
+class TrainRun:
+    """One ``lerobot-train`` run: its inputs, and where its checkpoint and log go."""
+
+    dataset_root: Path
+    output_dir: Path
+    steps: int
+    batch_size: int
+    scene_bounds: tuple[float, ...]
+    preset: str = "small"
+    device: str = "cpu"
+    seed: int = 0
+    job_name: str = "sigma"
+    # Extra ``--policy.*`` (or any lerobot-train) arguments, e.g. ["--policy.use_contrastive=false"].
+    extra_args: list[str] = field(default_factory=list)
+
+    @property
+    def checkpoint(self) -> Path:
+        return self.output_dir / "checkpoints" / "last" / "pretrained_model"
+
+    def command(self) -> list[str]:
+        box = ",".join(f"{v:g}" for v in self.scene_bounds)
+        return [
+            str(Path(sys.executable).with_name("lerobot-train")),
+            "--policy.type=sigma",
+            f"--policy.preset={self.preset}",
+            f"--policy.device={self.device}",
+            f"--policy.scene_bounds=[{box}]",
+            f"--dataset.root={self.dataset_root}",
+            "--dataset.repo_id=local/sigma_keyframe",
+            "--dataset.video_backend=pyav",
+            f"--output_dir={self.output_dir}",
+            f"--job_name={self.job_name}",
+            f"--steps={self.steps}",
+            f"--batch_size={self.batch_size}",
+            "--num_workers=0",
+            f"--log_freq={max(1, self.steps // 20)}",
+            f"--save_freq={self.steps}",
+            "--wandb.enable=false",
+            f"--seed={self.seed}",
+            *self.extra_args,
+        ]
+
+
+def start(run: TrainRun, log_path: Path | None = None, threads: int | None = None) -> subprocess.Popen:
+    """Start ``lerobot-train``; its output goes to ``log_path`` (or this terminal). ``threads`` caps torch."""
+    env = dict(os.environ, HF_HUB_OFFLINE="1")
+    if threads:
+        env["OMP_NUM_THREADS"] = str(threads)
+    if log_path is None:
+        print("$ " + " ".join(run.command()), flush=True)
+        return subprocess.Popen(run.command(), env=env)
+    log_path.parent.mkdir(parents=True, exist_ok=True)
+    with open(log_path, "w") as log:
+        log.write("$ " + " ".join(run.command()) + "\n")
+        log.flush()
+        return subprocess.Popen(run.command(), env=env, stdout=log, stderr=subprocess.STDOUT)
+
+
+def wait(run: TrainRun, proc: subprocess.Popen, log_path: Path | None = None) -> Path:
+    """Wait for ``proc``; return the checkpoint or raise naming the log to read."""
+    code = proc.wait()
+    where = f"; see {log_path}" if log_path else ""
+    if code != 0:
+        raise RuntimeError(f"lerobot-train ({run.job_name}) exited with status {code}{where}")
+    if not (run.checkpoint / "config.json").exists():
+        raise RuntimeError(
+            f"lerobot-train ({run.job_name}) finished without a checkpoint at {run.checkpoint}"
+        )
+    return run.checkpoint
+
+
+def train(run: TrainRun, log_path: Path | None = None, threads: int | None = None) -> tuple[Path, float]:
+    """Run ``lerobot-train`` to completion; return (checkpoint, wall seconds)."""
+    t0 = time.perf_counter()
+    ckpt = wait(run, start(run, log_path, threads), log_path)
+    return ckpt, time.perf_counter() - t0
+
+
+_METRIC = re.compile(r"\b([a-z_]+):(-?[0-9.]+(?:e-?[0-9]+)?)\b")
+
+
+def last_logged_metrics(log_path: Path) -> dict[str, float]:
+    """The metrics of the last ``step:...`` line LeRobot logged (loss parts, ``logit_scale``...)."""
+    last: dict[str, float] = {}
+    for line in Path(log_path).read_text(errors="replace").splitlines():
+        if " step:" in line and "loss:" in line:
+            tail = line.split(" step:", 1)[1]
+            last = {k: float(v) for k, v in _METRIC.findall(tail)}
+            last["step"] = float(tail.split()[0].rstrip("K")) * (1000 if tail.split()[0].endswith("K") else 1)
+    return last
