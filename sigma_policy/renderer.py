@@ -45,7 +45,9 @@ exactly as written, but turned into the scatter address with integer bit operati
 ``d^2 - r^2``): candidates outside the disc, off the image or of invalid points go to a dummy slot on CPU, where
 boolean masks and ``torch.where`` are several times slower than integer arithmetic; on CUDA they are dropped
 with a boolean mask instead (one slot would serialise the atomics). On CPU the work runs one sample at a time
-so the candidate buffers stay in cache and are reused. The winner's depth and index are then unpacked once and
+so the candidate buffers stay in cache and are reused, and the (sample, view) scatters -- disjoint parts of the
+z-buffer -- are shared among ``torch.get_num_threads()`` Python threads (PyTorch kernels release the GIL; each
+thread has its own scratch memory, and intra-op threading is paused meanwhile so the threads do not fight). The winner's depth and index are then unpacked once and
 its coordinates and features gathered straight into the output.
 """
 
@@ -54,6 +56,7 @@ from __future__ import annotations
 import math
 import sys
 import threading
+from concurrent.futures import ThreadPoolExecutor
 
 import torch
 from torch import Tensor, nn
@@ -140,6 +143,18 @@ def _workspace(device: torch.device) -> _Workspace:
     if not hasattr(_CPU_WORKSPACES, name):
         setattr(_CPU_WORKSPACES, name, _Workspace(reuse=True))
     return getattr(_CPU_WORKSPACES, name)
+
+
+_POOLS: dict[int, ThreadPoolExecutor] = {}
+_POOL_LOCK = threading.Lock()
+
+
+def _cpu_pool(threads: int) -> ThreadPoolExecutor:
+    """A process-wide pool of ``threads`` render threads (created once per size)."""
+    with _POOL_LOCK:
+        if threads not in _POOLS:
+            _POOLS[threads] = ThreadPoolExecutor(threads, thread_name_prefix="sigma-render")
+        return _POOLS[threads]
 
 
 def _one_plus(c: Tensor, sign: int, out: Tensor) -> Tensor:
@@ -237,21 +252,49 @@ class VirtualViewRenderer(nn.Module):
         buf.fill_((_INF_BITS << 32) | M)
         if M == 0:
             return buf[:size]
-        # CPU: one sample at a time, so the candidate buffers stay cache-sized and are reused. CUDA: whole batch.
-        per_chunk = 1 if dev.type == "cpu" else B
-        for b0 in range(0, B, per_chunk):
-            b1 = min(B, b0 + per_chunk)
-            pixel0 = (  # flat address of pixel (b, view 0, 0, 0), dummy slot included
-                1 + b0 * V * S * S
-                if b1 - b0 == 1
-                else torch.arange(
-                    1 + b0 * V * S * S, 1 + b1 * V * S * S, V * S * S, device=dev, dtype=torch.int32
-                ).repeat_interleave(N)
-            )
-            self._scatter_chunk(
-                buf, pts[b0:b1].view(-1, 3), ignore[b0 * N : b1 * N], b0 * N, pixel0, mode, ws
-            )
+        if dev.type == "cpu":
+            self._scatter_cpu(buf, pts, ignore, mode)
+        else:  # the whole batch at once; pixel0 = flat address of pixel (b, view 0, 0, 0), dummy slot included
+            pixel0 = torch.arange(1, 1 + B * V * S * S, V * S * S, device=dev, dtype=torch.int32)
+            self._scatter_chunk(buf, pts.view(-1, 3), ignore, 0, pixel0.repeat_interleave(N), mode, ws)
         return buf[:size]
+
+    def _scatter_cpu(self, buf: Tensor, pts: Tensor, ignore: Tensor, mode: str) -> None:
+        """CPU: one sample at a time per thread (cache-sized, reused candidate buffers). With
+        ``torch.get_num_threads()`` > 1, whole samples (batch >= threads) or groups of views (smaller batches) are
+        rendered by that many threads at once; they write disjoint images of ``buf`` (only the dummy slot is
+        shared, and its content is never read), so the result is identical to the serial one."""
+        B, N, _ = pts.shape
+        S, V = self.img_size, self.num_views
+        intra = torch.get_num_threads()
+        threads = min(intra, B * V)
+        if threads >= B:  # few samples: every thread renders some of the views of each sample
+            groups = [list(range(i, V, threads)) for i in range(min(threads, V))]
+            jobs = [(b, views) for b in range(B) for views in groups]
+        else:  # enough samples: every thread renders whole samples
+            jobs = [(b, None) for b in range(B)]
+        inference = torch.is_inference_mode_enabled()
+
+        def run(job: tuple[int, list[int] | None]) -> None:
+            b, views = job
+            with torch.inference_mode(inference), torch.no_grad():
+                rows = slice(b * N, (b + 1) * N)
+                pixel0 = 1 + b * V * S * S
+                self._scatter_chunk(
+                    buf, pts[b], ignore[rows], b * N, pixel0, mode, _workspace(buf.device), views
+                )
+
+        if threads <= 1:
+            for job in jobs:
+                run(job)
+            return
+        # The render threads are the parallelism; intra-op threads on top of them would oversubscribe the cores.
+        torch.set_num_threads(1)
+        try:
+            for future in [_cpu_pool(threads).submit(run, job) for job in jobs]:
+                future.result()
+        finally:
+            torch.set_num_threads(intra)
 
     def _scatter_chunk(
         self,
@@ -262,10 +305,11 @@ class VirtualViewRenderer(nn.Module):
         pixel0: int | Tensor,
         mode: str,
         ws: _Workspace,
+        views: list[int] | None = None,
     ) -> None:
         """Scatter-min the keys of ``m`` points ``pts (m, 3)`` (flat indices ``first ..``, ``ignore (m,)`` int32
-        -1/0) into every pixel their disc covers, in all 5 views; ``pixel0`` (scalar or ``(m,)``) is the address
-        of each point's pixel (view 0, 0, 0)."""
+        -1/0) into every pixel their disc covers, in all 5 views (or only ``views``); ``pixel0`` (scalar or
+        ``(m,)``) is the address of each point's pixel (view 0, 0, 0)."""
         m, dev = pts.shape[0], pts.device
         S, T, f32, i32 = self.img_size, 2 * self._reach + 1, torch.float32, torch.int32
         coords = torch.nan_to_num(pts.t(), 0.0, 0.0, 0.0, out=ws.get("coords", (3, m), f32, dev))
@@ -296,6 +340,8 @@ class VirtualViewRenderer(nn.Module):
         for view, ((_, _, _, _, cz, sz), (iu, iv)) in enumerate(
             zip(VIEW_AXES, _VIEW_QUANTITIES, strict=True)
         ):
+            if views is not None and view not in views:
+                continue
             _one_plus(coords[cz], sz, out=z)
             # Ignored points and points behind the camera (z < 0: sign bit set) get +inf added to the row distance.
             torch.bitwise_right_shift(z.view(i32), 31, out=z_bad).bitwise_or_(ignore).bitwise_and_(_INF_BITS)

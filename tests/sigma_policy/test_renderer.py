@@ -231,3 +231,25 @@ def test_renders_alternate_between_inference_mode_and_no_grad():
     with torch.inference_mode():
         third = renderer(points, feats, None)
     assert torch.equal(first, second) and torch.equal(second, third)
+
+
+@pytest.mark.parametrize("batch", [1, 2, 5])
+@pytest.mark.parametrize("threads", [2, 3])
+def test_threaded_cpu_render_is_identical_to_serial(batch: int, threads: int):
+    """CPU renders split samples (batch >= threads) or views (smaller batches) among threads; same bits."""
+    gen = torch.Generator().manual_seed(batch)
+    points = torch.rand(batch, 3000, 3, generator=gen) * 2.2 - 1.1  # some outside the cube
+    points[:, ::7] = points[:, :1]  # many exact depth ties
+    feats = torch.rand(batch, 3000, 3, generator=gen)
+    renderer = VirtualViewRenderer(img_size=48)
+    before = torch.get_num_threads()
+    try:
+        torch.set_num_threads(1)
+        serial = renderer(points, feats)
+        torch.set_num_threads(threads)
+        with torch.inference_mode():
+            threaded = renderer(points, feats)
+        assert torch.get_num_threads() == threads  # restored after the render
+    finally:
+        torch.set_num_threads(before)
+    assert torch.equal(serial, threaded)
