@@ -14,10 +14,12 @@ import rerun.blueprint as rrb
 def episode_blueprint(camera_names: Sequence[str], with_depth: bool = True) -> rrb.Blueprint:
     """Layout of the episode viewer.
 
-    Left: the 3D world (cameras as frusta at their per-frame pose, RGB on the image planes, depth and the
-    fused cloud back-projected, end-effector path, keyframe axes, goal link) above the time series (state,
+    Left: the 3D world (cameras as frusta at their per-frame pose, RGB on the image planes, the fused colour
+    cloud of all cameras, end-effector path, keyframe axes, goal link) above the time series (state,
     action, distance to the goal keyframe). Right: one 2D view per camera (RGB, then depth) above the
-    instruction. Playback starts on the ``frame_index`` timeline.
+    instruction. Playback starts on the ``frame_index`` timeline. The per-camera depth images stay out of the
+    3D view (Rerun would back-project each one as its own cloud and bury the fused colour cloud under them);
+    add them back there with the viewer's entity panel.
     """
     rgb_views = [
         rrb.Spatial2DView(origin=f"world/cameras/{cam}", contents=["$origin/rgb"], name=f"{cam} rgb")
@@ -34,7 +36,15 @@ def episode_blueprint(camera_names: Sequence[str], with_depth: bool = True) -> r
         rrb.TimeSeriesView(origin="timeseries/goal_distance", name="distance to goal"),
     )
     layout = rrb.Horizontal(
-        rrb.Vertical(rrb.Spatial3DView(origin="world", name="3D world"), series, row_shares=[3, 2]),
+        rrb.Vertical(
+            rrb.Spatial3DView(
+                origin="world",
+                contents=["+ $origin/**", *(f"- $origin/cameras/{cam}/depth" for cam in camera_names)],
+                name="3D world",
+            ),
+            series,
+            row_shares=[3, 2],
+        ),
         rrb.Vertical(
             cameras, rrb.TextDocumentView(origin="instruction", name="instruction"), row_shares=[3, 1]
         ),
