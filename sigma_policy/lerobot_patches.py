@@ -8,12 +8,18 @@ per sample, measured on this project's demo dataset, which made ``lerobot-train`
 
 The replacement groups keys that ask for the same rows and decodes those rows once. Its output is the same
 dictionary of stacked tensors (``tests/sigma_policy/test_lerobot_patches.py`` compares it with the original on a
-real dataset); on any unexpected input it defers to the original method. Set ``SIGMA_NO_LEROBOT_PATCHES=1`` to
-leave LeRobot untouched.
+real dataset); on any unexpected input it defers to the original method.
+
+A log filter shortens one LeRobot warning: on machines without FFmpeg's shared libraries (sigma's set-up does not
+need them: PyAV ships its own), LeRobot logs torchcodec's loading tracebacks for every FFmpeg version at every
+``lerobot-train`` start (~150 lines) before falling back to PyAV. The filter keeps the warning as one line.
+
+Set ``SIGMA_NO_LEROBOT_PATCHES=1`` to leave LeRobot untouched.
 """
 
 from __future__ import annotations
 
+import logging
 import os
 from collections import defaultdict
 
@@ -45,6 +51,20 @@ def _grouped_query_hf_dataset(self, query_indices: dict[str, list[int]]) -> dict
         return original(self, query_indices)
 
 
+class _ShortTorchcodecWarning(logging.Filter):
+    """Rewrites LeRobot's "torchcodec cannot be loaded" warning (with its tracebacks) to one line."""
+
+    def filter(self, record: logging.LogRecord) -> bool:
+        msg = str(record.msg)
+        if "torchcodec' is installed but cannot be loaded" in msg:
+            record.msg = (
+                "torchcodec cannot load here (usually: no FFmpeg 4-8 shared libraries); LeRobot falls back to "
+                "PyAV for video decoding (SIGMA_NO_LEROBOT_PATCHES=1 shows torchcodec's loader tracebacks)"
+            )
+            record.args = ()
+        return True
+
+
 def install() -> bool:
     """Install the grouped query on LeRobot's ``DatasetReader`` (idempotent). Returns whether it is active."""
     global _INSTALLED
@@ -60,5 +80,6 @@ def install() -> bool:
         return False
     _grouped_query_hf_dataset.original = DatasetReader._query_hf_dataset
     DatasetReader._query_hf_dataset = _grouped_query_hf_dataset
+    logging.getLogger("lerobot.utils.import_utils").addFilter(_ShortTorchcodecWarning())
     _INSTALLED = True
     return True

@@ -35,3 +35,20 @@ def test_patched_query_matches_lerobot_original(tmp_path):
             assert torch.equal(fast[key], slow[key]), key
     item = ds[1]
     assert item["observation.state"].shape[0] == 2
+
+
+def test_torchcodec_warning_is_one_line(caplog):
+    import logging
+
+    import sigma_policy  # noqa: F401  (installs the patches)
+
+    logger = logging.getLogger("lerobot.utils.import_utils")
+    with caplog.at_level(logging.WARNING, logger="lerobot.utils.import_utils"):
+        logger.warning(
+            "Could not load libtorchcodec.\n[start of libtorchcodec loading traceback]\n...\n"
+            "'torchcodec' is installed but cannot be loaded (see the error above). Falling back to 'pyav'."
+        )
+        logger.warning("an unrelated warning\nwith two lines")
+    messages = [r.getMessage() for r in caplog.records]
+    assert messages[0].startswith("torchcodec cannot load here") and "\n" not in messages[0]
+    assert messages[1] == "an unrelated warning\nwith two lines"
