@@ -177,7 +177,13 @@ class DatasetSink:
         layout: DatasetLayout,
         static_calibration: StaticCalibration | None = None,
     ) -> None:
-        """Write one episode into every dataset. Raises on failure (the partial episode is discarded)."""
+        """Write one episode into every dataset. Raises on failure (the partial episode is discarded).
+
+        The dense writer runs first and reads every frame, so a bad source frame (missing image, wrong size,
+        NaN) fails the episode before anything of it reaches either dataset; the keyframe writer then reads a
+        subset of the same frames. Only an I/O failure inside the keyframe writer (disk full) could leave the
+        dense dataset one episode ahead; ``import.json`` then names the episode.
+        """
         self.open(layout, static_calibration)
         for writer in self.writers.values():
             writer.add_episode(episode, views)
