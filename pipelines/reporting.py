@@ -54,7 +54,13 @@ def command_line() -> str:
     """The command that is running, as a user would type it (``python -m benchmarks.x --flag v``)."""
     main = sys.modules.get("__main__")
     spec = getattr(main, "__spec__", None)
-    head = f"python -m {spec.name}" if spec is not None and spec.name else f"python {sys.argv[0]}"
+    script = Path(sys.argv[0]).name
+    if spec is not None and spec.name:
+        head = f"python -m {spec.name}"
+    elif script.startswith("sigma-"):  # a console script of this package
+        head = script
+    else:
+        head = f"python {sys.argv[0]}"
     return " ".join([head, *map(shlex.quote, sys.argv[1:])])
 
 
