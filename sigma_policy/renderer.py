@@ -45,9 +45,9 @@ exactly as written, but turned into the scatter address with integer bit operati
 ``d^2 - r^2``): candidates outside the disc, off the image or of invalid points go to a dummy slot on CPU, where
 boolean masks and ``torch.where`` are several times slower than integer arithmetic; on CUDA they are dropped
 with a boolean mask instead (one slot would serialise the atomics). On CPU the work runs one sample at a time
-so the candidate buffers stay in cache and are reused, and the (sample, view) scatters -- disjoint parts of the
+so the candidate buffers stay in cache and are reused, and the samples of a batch -- disjoint parts of the
 z-buffer -- are shared among ``torch.get_num_threads()`` Python threads (PyTorch kernels release the GIL; each
-thread has its own scratch memory, and intra-op threading is paused meanwhile so the threads do not fight). The winner's depth and index are then unpacked once and
+thread has its own scratch memory and dummy slot, and intra-op threading is paused meanwhile). The winner's depth and index are then unpacked once and
 its coordinates and features gathered straight into the output.
 """
 
@@ -87,6 +87,7 @@ _VIEW_QUANTITIES: tuple[tuple[int, int], ...] = tuple(
 _INF_BITS = 0x7F800000  # float32 +inf as int32 bits: the key's depth part for an empty pixel
 _NEG_ONE_BITS = -0x40800000  # float32 -1.0 as int32 bits (0xBF800000): the depth channel of an empty pixel
 _LOW32 = 0xFFFFFFFF
+_DUMMY_STRIDE = 8  # int64 slots per cache line: the spacing of the CPU jobs' dummy slots
 _SCATTER_MODES = ("auto", "dummy", "spread", "compact")
 _OFF_IMAGE = (
     1e30  # added (times the squared pixel overshoot >= 1) to the squared distance of off-image pixels
@@ -234,7 +235,7 @@ class VirtualViewRenderer(nn.Module):
         M, S, V, dev = B * N, self.img_size, self.num_views, points_cube.device
         if M >= 2**31 - 1:
             raise ValueError(f"batch too large for the packed z-buffer: B*N = {M} >= 2^31 - 1")
-        if 1 + B * V * S * S >= 2**31:
+        if 1 + B * V * S * S + _DUMMY_STRIDE * B >= 2**31:
             raise ValueError(f"batch too large for int32 pixel addresses: B*V*H*W = {B * V * S * S}")
         mode = (
             self.scatter_mode if self.scatter_mode != "auto" else ("dummy" if dev.type == "cpu" else "spread")
@@ -248,50 +249,48 @@ class VirtualViewRenderer(nn.Module):
         # -1 (all bits set) for points to ignore, 0 for the others.
         ignore = valid.view(M).to(torch.int32).sub_(1)
         size = 1 + B * V * S * S  # "spread" appends a shadow copy of the pixels
-        buf = ws.get("zbuf", (2 * size - 1 if mode == "spread" else size,), torch.int64, dev)
+        # CPU: each render job gets its own dummy slot after the pixels, a cache line apart, so parallel jobs
+        # never write the same cache line (a shared dummy slot made two threads slower than one).
+        extra = _DUMMY_STRIDE * B if dev.type == "cpu" else 0
+        buf = ws.get("zbuf", (2 * size - 1 if mode == "spread" else size + extra,), torch.int64, dev)
         buf.fill_((_INF_BITS << 32) | M)
         if M == 0:
             return buf[:size]
         if dev.type == "cpu":
-            self._scatter_cpu(buf, pts, ignore, mode)
+            self._scatter_cpu(buf, pts, ignore, mode, first_dummy=size)
         else:  # the whole batch at once; pixel0 = flat address of pixel (b, view 0, 0, 0), dummy slot included
             pixel0 = torch.arange(1, 1 + B * V * S * S, V * S * S, device=dev, dtype=torch.int32)
             self._scatter_chunk(buf, pts.view(-1, 3), ignore, 0, pixel0.repeat_interleave(N), mode, ws)
         return buf[:size]
 
-    def _scatter_cpu(self, buf: Tensor, pts: Tensor, ignore: Tensor, mode: str) -> None:
-        """CPU: one sample at a time per thread (cache-sized, reused candidate buffers). With
-        ``torch.get_num_threads()`` > 1, whole samples (batch >= threads) or groups of views (smaller batches) are
-        rendered by that many threads at once; they write disjoint images of ``buf`` (only the dummy slot is
-        shared, and its content is never read), so the result is identical to the serial one."""
+    def _scatter_cpu(self, buf: Tensor, pts: Tensor, ignore: Tensor, mode: str, first_dummy: int) -> None:
+        """CPU: one sample at a time per thread (cache-sized, reused candidate buffers). With a batch and
+        ``torch.get_num_threads()`` > 1, that many threads render whole samples at once; they write disjoint
+        images of ``buf`` and their own dummy slots, so the result is identical to the serial one. (Splitting
+        the views of a single sample among threads was measured slower than one thread, and is not done.)"""
         B, N, _ = pts.shape
         S, V = self.img_size, self.num_views
         intra = torch.get_num_threads()
-        threads = min(intra, B * V)
-        if threads >= B:  # few samples: every thread renders some of the views of each sample
-            groups = [list(range(i, V, threads)) for i in range(min(threads, V))]
-            jobs = [(b, views) for b in range(B) for views in groups]
-        else:  # enough samples: every thread renders whole samples
-            jobs = [(b, None) for b in range(B)]
+        threads = min(intra, B)
         inference = torch.is_inference_mode_enabled()
 
-        def run(job: tuple[int, list[int] | None]) -> None:
-            b, views = job
+        def run(b: int) -> None:
+            dummy = first_dummy + _DUMMY_STRIDE * b if mode == "dummy" else 0
             with torch.inference_mode(inference), torch.no_grad():
                 rows = slice(b * N, (b + 1) * N)
                 pixel0 = 1 + b * V * S * S
                 self._scatter_chunk(
-                    buf, pts[b], ignore[rows], b * N, pixel0, mode, _workspace(buf.device), views
+                    buf, pts[b], ignore[rows], b * N, pixel0, mode, _workspace(buf.device), dummy
                 )
 
         if threads <= 1:
-            for job in jobs:
-                run(job)
+            for b in range(B):
+                run(b)
             return
         # The render threads are the parallelism; intra-op threads on top of them would oversubscribe the cores.
         torch.set_num_threads(1)
         try:
-            for future in [_cpu_pool(threads).submit(run, job) for job in jobs]:
+            for future in [_cpu_pool(threads).submit(run, b) for b in range(B)]:
                 future.result()
         finally:
             torch.set_num_threads(intra)
@@ -305,11 +304,12 @@ class VirtualViewRenderer(nn.Module):
         pixel0: int | Tensor,
         mode: str,
         ws: _Workspace,
-        views: list[int] | None = None,
+        dummy: int = 0,
     ) -> None:
         """Scatter-min the keys of ``m`` points ``pts (m, 3)`` (flat indices ``first ..``, ``ignore (m,)`` int32
-        -1/0) into every pixel their disc covers, in all 5 views (or only ``views``); ``pixel0`` (scalar or
-        ``(m,)``) is the address of each point's pixel (view 0, 0, 0)."""
+        -1/0) into every pixel their disc covers, in all 5 views; ``pixel0`` (scalar or
+        ``(m,)``) is the address of each point's pixel (view 0, 0, 0); ``dummy`` the slot that candidates
+        outside a disc go to in ``"dummy"`` mode."""
         m, dev = pts.shape[0], pts.device
         S, T, f32, i32 = self.img_size, 2 * self._reach + 1, torch.float32, torch.int32
         coords = torch.nan_to_num(pts.t(), 0.0, 0.0, 0.0, out=ws.get("coords", (3, m), f32, dev))
@@ -340,8 +340,6 @@ class VirtualViewRenderer(nn.Module):
         for view, ((_, _, _, _, cz, sz), (iu, iv)) in enumerate(
             zip(VIEW_AXES, _VIEW_QUANTITIES, strict=True)
         ):
-            if views is not None and view not in views:
-                continue
             _one_plus(coords[cz], sz, out=z)
             # Ignored points and points behind the camera (z < 0: sign bit set) get +inf added to the row distance.
             torch.bitwise_right_shift(z.view(i32), 31, out=z_bad).bitwise_or_(ignore).bitwise_and_(_INF_BITS)
@@ -353,7 +351,7 @@ class VirtualViewRenderer(nn.Module):
                 flat
             )  # z >= 0: float order = int order
             if mode == "dummy":
-                self._scatter_via_dummy(buf, row_d2, row_addr, tap_d2[iu], tap_pix[iu], key, ws)
+                self._scatter_via_dummy(buf, row_d2, row_addr, tap_d2[iu], tap_pix[iu], key, ws, dummy)
             elif mode == "spread":
                 self._scatter_spread(buf, row_d2, row_addr, tap_d2[iu], tap_pix[iu], key)
             else:
@@ -368,9 +366,10 @@ class VirtualViewRenderer(nn.Module):
         col_pix: Tensor,
         key: Tensor,
         ws: _Workspace,
+        dummy: int = 0,
     ) -> None:
         """Scatter-min ``key (m,)`` into the ``T x T`` candidate pixels (rows ``row_d2, row_addr (T, m)`` x
-        columns ``col_d2, col_pix (T, m)``); candidates outside the disc go to the dummy slot 0."""
+        columns ``col_d2, col_pix (T, m)``); candidates outside the disc go to slot ``dummy``."""
         T, m = row_d2.shape
         d2 = torch.add(row_d2[:, None], col_d2[None], out=ws.get("d2", (T, T, m), torch.float32, buf.device))
         # Sign bit of d^2 - r^2 (exact: rounding keeps the sign) as an int32 mask: -1 inside the disc, else 0.
@@ -379,7 +378,10 @@ class VirtualViewRenderer(nn.Module):
             row_addr[:, None], col_pix[None], out=ws.get("addr", (T, T, m), torch.int32, buf.device)
         )
         index = ws.get("index", (T * T, m), torch.int64, buf.device)
-        index.copy_(inside.bitwise_and_(addr).view(T * T, m))
+        if dummy:
+            index.copy_(inside.bitwise_and_(addr.sub_(dummy)).add_(dummy).view(T * T, m))
+        else:
+            index.copy_(inside.bitwise_and_(addr).view(T * T, m))
         for t in range(T * T):
             buf.scatter_reduce_(0, index[t], key, reduce="amin", include_self=True)
 
