@@ -29,13 +29,20 @@ from sigma_data.collect import CollectConfig, collect
 
 @dataclass
 class BenchConfig:
+    # Registry task whose expert runs in every row.
     task: str = "lift"
+    # Episodes (seeds 0..episodes-1) per row.
     episodes: int = 4
+    # Cameras, comma-separated.
     cameras: str = ",".join(DEFAULT_CAMERAS)
+    # Image size in pixels (square).
     size: int = 128
     # Worker count for the scaling row (compared with 1 worker, keyframe dataset).
     workers: int = 2
+    # Where the datasets go (default: a temporary directory).
     workdir: Path | None = None
+    # Write benchmarks/results/collect.md (+ .json), the fragment RESULTS.md includes.
+    publish: bool = True
 
 
 class BaselineDriver:
@@ -199,14 +206,47 @@ def main() -> None:
     rowN = (*rowN[:5], f"{rowN[3] / row1[3]:.2f}x vs 1 worker; " + rowN[5])
     rows += [row1, rowN]
 
-    print(
-        f"\n{cfg.task}, {cfg.episodes} episodes, cameras {cfg.cameras} at {cfg.size}x{cfg.size}, same seeds\n"
+    import resource
+
+    peak_mb = {
+        who: resource.getrusage(flag).ru_maxrss / 1024
+        for who, flag in (
+            ("this process", resource.RUSAGE_SELF),
+            ("worker processes", resource.RUSAGE_CHILDREN),
+        )
+    }
+    lines = [
+        f"{cfg.task}, {cfg.episodes} episodes, cameras {cfg.cameras} at {cfg.size}x{cfg.size}, same seeds.",
+        "",
+        "| run | kept | wall s | episodes/min | vs baseline | notes |",
+        "|---|---|---|---|---|---|",
+        *(
+            f"| {name} | {kept} | {wall:.1f} | {rate:.2f} | {ratio} | {note} |"
+            for name, kept, wall, rate, ratio, note in rows
+        ),
+    ]
+    table = "\n".join(lines)
+    print("\n" + table)
+    notes = (
+        f"Baseline writer time {b['write_s']:.1f} s of {b['wall']:.1f} s. Peak resident memory: "
+        + ", ".join(f"{who} {mb:.0f} MiB" for who, mb in peak_mb.items())
+        + " (the largest single process of each kind)."
     )
-    print("| run | kept | wall s | episodes/min | vs baseline | notes |")
-    print("|---|---|---|---|---|---|")
-    for name, kept, wall, rate, ratio, note in rows:
-        print(f"| {name} | {kept} | {wall:.1f} | {rate:.2f} | {ratio} | {note} |")
-    print(f"\nbaseline writer time {b['write_s']:.1f} s of {b['wall']:.1f} s; data under {work}")
+    print(f"\n{notes} Data under {work}")
+    if cfg.publish:
+        from pipelines.reporting import write_report
+
+        data = [
+            dict(zip(("run", "kept", "wall_s", "episodes_per_min", "vs_baseline", "notes"), r, strict=True))
+            for r in rows
+        ]
+        write_report(
+            "collect",
+            "Collection vs robosuite's own camera loop",
+            table,
+            {"rows": data, "peak_mb": peak_mb},
+            notes,
+        )
 
 
 if __name__ == "__main__":

@@ -25,6 +25,8 @@ class LoaderBenchConfig:
     # A keyframe dataset; default: a synthetic one written to a temporary directory.
     root: Path | None = None
     samples: int = 20
+    # Write benchmarks/results/loader.md (+ .json), the fragment RESULTS.md includes.
+    publish: bool = True
 
 
 def _per_item_ms(ds, n: int) -> float:
@@ -78,6 +80,17 @@ def main(cfg: LoaderBenchConfig) -> str:
         ]
     )
     print(table)
+    if cfg.publish:
+        from pipelines.reporting import write_report
+
+        write_report(
+            "loader",
+            "Loader: a keyframe-dataset sample as lerobot-train reads it for sigma",
+            table,
+            {"lerobot_ms": stock, "sigma_grouped_ms": grouped, "single_frame_ms": single, "root": str(root)},
+            notes="sigma installs the grouped query on import (`sigma_policy/lerobot_patches.py`); the baseline "
+            "is LeRobot's own `_query_hf_dataset`, timed in the same run on the same dataset.",
+        )
     return table
 
 

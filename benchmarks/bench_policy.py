@@ -110,7 +110,10 @@ def main() -> None:
     parser.add_argument("--steps", type=int, default=None)
     parser.add_argument("--reps", type=int, default=None)
     parser.add_argument("--threads", type=int, default=2, help="torch CPU threads")
-    parser.add_argument("--no-contrastive", action="store_true")
+    parser.add_argument("--no-contrastive", action="store_true", help="measure the BC-only step only")
+    parser.add_argument(
+        "--no-publish", action="store_true", help="do not write benchmarks/results/policy_*.md"
+    )
     args = parser.parse_args()
 
     torch.set_num_threads(args.threads)
@@ -121,45 +124,80 @@ def main() -> None:
     reps = args.reps or (50 if gpu else 10)
     cams = [f"cam{i}" for i in range(args.cameras)]
 
-    cfg = SigmaConfig(
-        preset=args.config,
-        device=args.device,
-        input_features=features(cams, args.camera_size),
-        output_features={"action": PolicyFeature(FeatureType.ACTION, (9,))},
-        depth_unit="m",
-        scene_bounds=BOUNDS,
-        use_contrastive=not args.no_contrastive,
-    )
-    policy = SigmaPolicy(cfg).to(args.device)
+    def measure(contrastive: bool) -> dict:
+        torch.manual_seed(0)
+        cfg = SigmaConfig(
+            preset=args.config,
+            device=args.device,
+            input_features=features(cams, args.camera_size),
+            output_features={"action": PolicyFeature(FeatureType.ACTION, (9,))},
+            depth_unit="m",
+            scene_bounds=BOUNDS,
+            use_contrastive=contrastive,
+        )
+        policy = SigmaPolicy(cfg).to(args.device)
+        train_batch = synthetic_batch(cams, args.camera_size, batch_size, 2, args.device)
+        train_batch["action"] = torch.tensor(
+            [[0.0, 0.05, 0.85, 1, 0, 0, 0, 1, 0]] * batch_size, device=args.device
+        )
+        samples_s = bench_train(policy, train_batch, steps, warmup=2 if not gpu else 5, device=args.device)
+        latency = bench_infer(
+            policy, synthetic_batch(cams, args.camera_size, 1, None, args.device), reps, 2, args.device
+        )
+        row = {
+            "contrastive": contrastive,
+            "params_train": policy.network.num_parameters(),
+            "params_inference": policy.network.num_parameters(inference_only=True),
+            "train_samples_per_s": round(samples_s, 2),
+            "inference_ms_per_action": round(latency * 1000, 1),
+        }
+        if gpu:
+            row["peak_mem_gb"] = round(torch.cuda.max_memory_allocated() / 2**30, 2)
+        return row
+
     if gpu:
         torch.backends.cuda.matmul.allow_tf32 = True
         torch.backends.cudnn.allow_tf32 = True
         torch.backends.cudnn.benchmark = True
-    train_batch = synthetic_batch(cams, args.camera_size, batch_size, 2, args.device)
-    train_batch["action"] = torch.tensor(
-        [[0.0, 0.05, 0.85, 1, 0, 0, 0, 1, 0]] * batch_size, device=args.device
-    )
-    samples_s = bench_train(policy, train_batch, steps, warmup=2 if not gpu else 5, device=args.device)
-    latency = bench_infer(
-        policy, synthetic_batch(cams, args.camera_size, 1, None, args.device), reps, 2, args.device
-    )
-    result = {
-        "config": args.config,
-        "device": torch.cuda.get_device_name() if gpu else f"cpu x{args.threads} threads",
-        "params_train": policy.network.num_parameters(),
-        "params_inference": policy.network.num_parameters(inference_only=True),
-        "batch_size": batch_size,
-        "cameras": f"{args.cameras} x {args.camera_size}^2",
-        "contrastive": not args.no_contrastive,
-        "train_samples_per_s": round(samples_s, 2),
-        "inference_ms_per_action": round(latency * 1000, 1),
-    }
-    if gpu:
-        result["peak_mem_gb"] = round(torch.cuda.max_memory_allocated() / 2**30, 2)
-    print(json.dumps(result, indent=2))
+    # The baseline of the same run: the BC-only (RVT-style) step, which renders no goal and has no
+    # contrastive heads; the ratio is the cost of contrastive IL.
+    rows = [measure(False)] + ([] if args.no_contrastive else [measure(True)])
+    device = torch.cuda.get_device_name() if gpu else f"cpu, {args.threads} torch threads"
+    goal_ms = 20 if gpu else 1000
+    base = rows[0]["train_samples_per_s"]
+    lines = [
+        f"`{args.config}` preset on {device}; batch {batch_size}; {args.cameras} synthetic RGB-D cameras at "
+        f"{args.camera_size}²; training = clouds, SE(3) augmentation, renders, network, losses, backward, LAMB step.",
+        "",
+        "| variant | parameters (train / inference) | train samples/s | vs BC-only | ms per action (batch 1) |",
+        "|---|---|---|---|---|",
+    ]
+    for r in rows:
+        name = (
+            "Σ-agent (BC + contrastive, current + goal render)" if r["contrastive"] else "BC only (RVT-style)"
+        )
+        lines.append(
+            f"| {name} | {r['params_train'] / 1e6:.2f} M / {r['params_inference'] / 1e6:.2f} M | "
+            f"{r['train_samples_per_s']:.2f} | {r['train_samples_per_s'] / base:.2f}x | "
+            f"{r['inference_ms_per_action']:.1f} (goal <= {goal_ms} ms: "
+            f"{'met' if r['inference_ms_per_action'] <= goal_ms else 'not met'}) |"
+        )
+    table = "\n".join(lines)
+    print(json.dumps(rows, indent=2))
+    print(table)
+    if not args.no_publish:
+        from pipelines.reporting import write_report
+
+        write_report(
+            f"policy_{args.config}_{'cuda' if gpu else 'cpu'}",
+            f"Policy training and inference speed ({args.config}, {'GPU' if gpu else 'CPU'})",
+            table,
+            {"device": device, "batch_size": batch_size, "rows": rows},
+        )
+    last = rows[-1]
     print(
-        f"bench_policy: {args.config} on {result['device']}: {result['train_samples_per_s']} train samples/s "
-        f"(batch {batch_size}), {result['inference_ms_per_action']} ms per action"
+        f"bench_policy: {args.config} on {device}: {last['train_samples_per_s']} train samples/s "
+        f"(batch {batch_size}), {last['inference_ms_per_action']} ms per action"
     )
 
 
