@@ -64,7 +64,11 @@ class VariationReport:
 
 
 def _short(reason: str) -> str:
-    return reason.split(":")[0] if ":" in reason else reason
+    """The failure reason with its per-episode numbers replaced by N, so that equal causes count together."""
+    import re
+
+    reason = reason.split(":")[0] if ":" in reason else reason
+    return re.sub(r"\d+(\.\d+)?", "N", reason)
 
 
 def run_variation(task_name: str, variation_name: str, seeds: list[int], replay: bool) -> VariationReport:
