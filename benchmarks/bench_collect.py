@@ -3,18 +3,25 @@
 Baseline: robosuite env with camera observations every step (``use_camera_obs=True``, RGB-D, default render
 settings), the same scripted expert, every step's observation written frame by frame (``add_frame``) into a dense
 LeRobot dataset with the same features and encoders. sigma: record without rendering, replay states, render only
-stored frames with the fast settings. All measured in the same run; prints a Markdown table of ratios.
+stored frames with the fast settings. Every run goes in a fresh process, so its peak resident memory
+(``ru_maxrss`` of the process and of its largest child) is its own. All measured in the same run; prints a
+Markdown table of ratios and writes it to ``benchmarks/results/collect.md`` (+ ``.json``).
 
-    python benchmarks/bench_collect.py                      # lift, 4 episodes, 4 RGB-D cameras at 128x128
-    python benchmarks/bench_collect.py --task=stack --episodes=6 --workers=2
+    python -m benchmarks.bench_collect                      # lift, 4 episodes, 4 RGB-D cameras at 128x128
+    python -m benchmarks.bench_collect --episodes 20        # the RESULTS.md run
+    python -m benchmarks.bench_collect --task=stack --episodes=6 --workers=2 --publish false
 """
 
 from __future__ import annotations
 
+import multiprocessing as mp
 import os
+import resource
 import shutil
 import tempfile
 import time
+from collections.abc import Callable
+from concurrent.futures import ProcessPoolExecutor
 from dataclasses import dataclass, replace
 from pathlib import Path
 
@@ -43,6 +50,8 @@ class BenchConfig:
     workdir: Path | None = None
     # Write benchmarks/results/collect.md (+ .json), the fragment RESULTS.md includes.
     publish: bool = True
+    # Where the fragment goes (default: benchmarks/results).
+    results_dir: Path | None = None
 
 
 class BaselineDriver:
@@ -165,6 +174,48 @@ def run_baseline(cfg: BenchConfig, root: Path) -> dict:
     return {"wall": wall, "kept": kept, "steps": steps, "write_s": write_s}
 
 
+def run_sigma(c: CollectConfig) -> dict:
+    """One ``sigma-data collect`` run; the numbers of the table row (plain data, so it crosses processes)."""
+    s = collect(c)
+    return {
+        "kept": s.kept,
+        "wall": s.wall_s,
+        "render_s": sum(r.render_s for r in s.shards),
+        "write_s": sum(r.write_s for r in s.shards),
+        "frames": sum(r.rendered_frames for r in s.shards),
+    }
+
+
+def _peak_self_mib() -> float:
+    """Peak resident memory of this process image (``VmHWM``; ``ru_maxrss`` where /proc is missing), MiB.
+
+    ``ru_maxrss`` of a spawned process also counts its parent's memory at the moment it was started (Linux
+    carries the high-water mark over ``exec``); ``VmHWM`` is this process's own.
+    """
+    try:
+        for line in Path("/proc/self/status").read_text().splitlines():
+            if line.startswith("VmHWM:"):
+                return int(line.split()[1]) / 1024
+    except OSError:
+        pass
+    return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
+
+
+def _with_peak_memory(fn: Callable[..., dict], *args) -> dict:
+    """``fn(*args)`` plus the peak resident memory (MiB) of this process and of its largest child process."""
+    out = fn(*args)
+    out["peak_mib"] = _peak_self_mib()
+    out["peak_child_mib"] = resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss / 1024
+    return out
+
+
+def isolated(fn: Callable[..., dict], *args) -> dict:
+    """Run ``fn(*args)`` in a fresh (spawned) process, so each row's peak memory is its own."""
+    ctx = mp.get_context("spawn")
+    with ProcessPoolExecutor(max_workers=1, mp_context=ctx) as pool:
+        return pool.submit(_with_peak_memory, fn, *args).result()
+
+
 def main() -> None:
     cfg = draccus.parse(BenchConfig)
     work = Path(cfg.workdir or tempfile.mkdtemp(prefix="bench_collect_"))
@@ -179,74 +230,76 @@ def main() -> None:
         shard_size=cfg.episodes,
         progress=False,
     )
-    rows = []
+    runs: list[dict] = []  # one per table row, in order
 
-    b = run_baseline(cfg, work / "baseline")
+    b = isolated(run_baseline, cfg, work / "baseline")
     base_rate = b["kept"] / b["wall"] * 60
-    rows.append(
-        ("robosuite loop, cameras every step, dense written", b["kept"], b["wall"], base_rate, "1.00x", "")
+    runs.append({"run": "robosuite loop, cameras every step, dense written", **b, "vs_baseline": 1.0})
+    runs[-1]["notes"] = f"writer {b['write_s']:.1f} s of {b['wall']:.1f} s"
+
+    def sigma(name: str, **kw) -> dict:
+        r = isolated(run_sigma, replace(base, output_dir=work / name, **kw))
+        r["vs_baseline"] = r["kept"] / r["wall"] * 60 / base_rate
+        r["notes"] = (
+            f"render {1000 * r['render_s'] / max(r['frames'], 1):.1f} ms/frame, "
+            f"write/render {r['write_s'] / max(r['render_s'], 1e-9):.0%}"
+        )
+        runs.append({"run": name, **r})
+        return r
+
+    sigma("sigma keyframe", dense=False)
+    sigma("sigma dense", keyframe=False)
+    one = sigma("sigma keyframe, 1 worker, 1-episode shards", dense=False, shard_size=1)
+    many = sigma(f"sigma keyframe, {cfg.workers} workers", dense=False, shard_size=1, workers=cfg.workers)
+    many["notes"] = (
+        f"{many['kept'] / many['wall'] / (one['kept'] / one['wall']):.2f}x vs 1 worker; " + many["notes"]
     )
 
-    def sigma(name: str, **kw) -> tuple:
-        c = replace(base, output_dir=work / name, **kw)
-        s = collect(c)
-        rate = s.kept / s.wall_s * 60
-        render = sum(r.render_s for r in s.shards)
-        write = sum(r.write_s for r in s.shards)
-        frames = sum(r.rendered_frames for r in s.shards)
-        note = f"render {1000 * render / max(frames, 1):.1f} ms/frame, write/render {write / max(render, 1e-9):.0%}"
-        return (name, s.kept, s.wall_s, rate, f"{rate / base_rate:.2f}x", note), s
-
-    row, _ = sigma("sigma keyframe", dense=False)
-    rows.append(row)
-    row, _ = sigma("sigma dense", keyframe=False)
-    rows.append(row)
-    row1, _ = sigma("sigma keyframe, 1 worker, 1-episode shards", dense=False, shard_size=1)
-    rowN, _ = sigma(f"sigma keyframe, {cfg.workers} workers", dense=False, shard_size=1, workers=cfg.workers)
-    rowN = (*rowN[:5], f"{rowN[3] / row1[3]:.2f}x vs 1 worker; " + rowN[5])
-    rows += [row1, rowN]
-
-    import resource
-
-    peak_mb = {
-        who: resource.getrusage(flag).ru_maxrss / 1024
-        for who, flag in (
-            ("this process", resource.RUSAGE_SELF),
-            ("worker processes", resource.RUSAGE_CHILDREN),
-        )
-    }
     lines = [
-        f"{cfg.task}, {cfg.episodes} episodes, cameras {cfg.cameras} at {cfg.size}x{cfg.size}, same seeds.",
+        f"{cfg.task}, {cfg.episodes} episodes per run (seeds 0-{cfg.episodes - 1}), cameras {cfg.cameras} at "
+        f"{cfg.size}x{cfg.size}; each run in a fresh process.",
         "",
-        "| run | kept | wall s | episodes/min | vs baseline | notes |",
-        "|---|---|---|---|---|---|",
+        "| run | episodes kept / run | wall s | episodes/min | vs baseline | peak RSS MiB (process / largest "
+        "child) | notes |",
+        "|---|---|---|---|---|---|---|",
         *(
-            f"| {name} | {kept} | {wall:.1f} | {rate:.2f} | {ratio} | {note} |"
-            for name, kept, wall, rate, ratio, note in rows
+            f"| {r['run']} | {r['kept']} / {cfg.episodes} | {r['wall']:.1f} | {r['kept'] / r['wall'] * 60:.2f} | "
+            f"{r['vs_baseline']:.2f}x | {r['peak_mib']:.0f} / "
+            f"{r['peak_child_mib']:.0f} | {r['notes']} |"
+            for r in runs
         ),
     ]
     table = "\n".join(lines)
     print("\n" + table)
     notes = (
-        f"Baseline writer time {b['write_s']:.1f} s of {b['wall']:.1f} s. Peak resident memory: "
-        + ", ".join(f"{who} {mb:.0f} MiB" for who, mb in peak_mb.items())
-        + " (the largest single process of each kind)."
+        "Ratios are episodes/min against the baseline row of this run. Peak RSS: the run's own process "
+        "(`VmHWM`) / its largest child process (`getrusage(RUSAGE_CHILDREN).ru_maxrss`: collection workers and "
+        "helper subprocesses; an upper bound, since Linux counts the parent's resident memory at the moment a "
+        "child starts)."
     )
     print(f"\n{notes} Data under {work}")
     if cfg.publish:
         from pipelines.reporting import write_report
 
-        data = [
-            dict(zip(("run", "kept", "wall_s", "episodes_per_min", "vs_baseline", "notes"), r, strict=True))
-            for r in rows
-        ]
         write_report(
             "collect",
             "Collection vs robosuite's own camera loop",
             table,
-            {"rows": data, "peak_mb": peak_mb},
+            {
+                "task": cfg.task,
+                "episodes": cfg.episodes,
+                "cameras": cfg.cameras,
+                "size": cfg.size,
+                "runs": runs,
+            },
             notes,
+            cfg.results_dir,
         )
+    keyframe = runs[1]
+    print(
+        f"bench_collect: {cfg.episodes} episodes of {cfg.task}: sigma keyframe {keyframe['vs_baseline']:.2f}x, "
+        f"dense {runs[2]['vs_baseline']:.2f}x the robosuite camera loop"
+    )
 
 
 if __name__ == "__main__":

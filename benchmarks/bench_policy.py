@@ -1,12 +1,19 @@
-"""Benchmark of the sigma policy: training samples/s and inference latency per action.
+"""Policy speed: training samples/s with the contrastive loss vs the BC-only step, and inference latency.
 
 Measures the full policy step the trainer runs (point clouds from depth, SE(3) augmentation, rendering of current
 and goal, network, losses, backward, LAMB step) and ``select_action`` on single observations, with synthetic
 RGB-D batches shaped like the data contract (cameras x H x W, depth in metres) so no dataset is needed.
 
-    python benchmarks/bench_policy.py --config small --device cpu      # small on CPU
-    python benchmarks/bench_policy.py --config paper --device cuda     # paper on a GPU (bf16 autocast)
+Baseline, measured in the same run: the same preset with ``use_contrastive=False`` (the BC-only, RVT-style
+step: no goal render, no contrastive heads), timed alternately with the Σ-agent step so both see the same
+machine load; the ratio of training samples/s is the cost of contrastive IL.
+Inference latency is compared with the goal of issue 6 (<= 1 s per action on CPU, <= 20 ms on a GPU).
 
+    python -m benchmarks.bench_policy --config small --device cpu      # small on CPU (the sigma-results run)
+    python -m benchmarks.bench_policy --config paper --device cuda     # paper on a GPU
+    python -m benchmarks.bench_policy --steps 2 --reps 3 --publish false
+
+Flags are draccus-style (``--batch_size``, ``--camera_size``, ``--contrastive false`` to time the baseline only).
 ``benchmarks/bench_network.py`` is the torch-only variant (renderer + network + losses + LAMB, random language
 tokens) for machines without LeRobot.
 
@@ -16,14 +23,16 @@ Numbers are machine-dependent: compare runs on the same machine only. The output
 
 from __future__ import annotations
 
-import argparse
 import json
 import os
 import statistics
 import time
+from dataclasses import dataclass, field
+from pathlib import Path
 
 os.environ.setdefault("HF_HUB_OFFLINE", "1")
 
+import draccus
 import torch
 from lerobot.configs.types import FeatureType, PolicyFeature
 from tqdm import tqdm
@@ -70,136 +79,220 @@ def sync(device: str) -> None:
         torch.cuda.synchronize()
 
 
-def bench_train(policy: SigmaPolicy, batch: dict, steps: int, warmup: int, device: str) -> float:
-    cfg = policy.config
-    opt = cfg.get_optimizer_preset().build(policy.get_optim_params())
-    policy.train()
-    for i in tqdm(range(warmup + steps), desc="train", leave=False):
-        if i == warmup:
-            sync(device)
-            start = time.perf_counter()
-        loss, _ = policy.forward(batch)
-        opt.zero_grad(set_to_none=True)
-        loss.backward()
-        opt.step()
+@dataclass
+class Variant:
+    """One policy under test, with its optimiser and inputs, and the step times measured so far (seconds)."""
+
+    contrastive: bool
+    policy: SigmaPolicy
+    optimizer: torch.optim.Optimizer
+    train_batch: dict
+    obs: dict
+    train_s: list[float] = field(default_factory=list)
+    infer_s: list[float] = field(default_factory=list)
+
+
+def train_step(v: Variant, device: str) -> float:
+    """One full training step (forward with losses, backward, optimiser step); wall seconds."""
     sync(device)
-    return steps * len(batch["task"]) / (time.perf_counter() - start)
+    start = time.perf_counter()
+    loss, _ = v.policy.forward(v.train_batch)
+    v.optimizer.zero_grad(set_to_none=True)
+    loss.backward()
+    v.optimizer.step()
+    sync(device)
+    return time.perf_counter() - start
 
 
 @torch.no_grad()
-def bench_infer(policy: SigmaPolicy, obs: dict, reps: int, warmup: int, device: str) -> float:
-    policy.eval()
-    times = []
-    for i in tqdm(range(warmup + reps), desc="infer", leave=False):
-        sync(device)
-        start = time.perf_counter()
-        policy.select_action(obs)
-        sync(device)
-        if i >= warmup:
-            times.append(time.perf_counter() - start)
-    return statistics.median(times)
+def infer_step(v: Variant, device: str) -> float:
+    """One ``select_action`` on a single observation; wall seconds."""
+    sync(device)
+    start = time.perf_counter()
+    v.policy.select_action(v.obs)
+    sync(device)
+    return time.perf_counter() - start
 
 
-def main() -> None:
-    parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
-    parser.add_argument("--config", choices=["small", "paper"], default="small")
-    parser.add_argument("--device", default="cuda" if torch.cuda.is_available() else "cpu")
-    parser.add_argument("--batch-size", type=int, default=None, help="default: 8 (small), 32 (paper)")
-    parser.add_argument("--cameras", type=int, default=4)
-    parser.add_argument("--camera-size", type=int, default=128)
-    parser.add_argument("--steps", type=int, default=None)
-    parser.add_argument("--reps", type=int, default=None)
-    parser.add_argument("--threads", type=int, default=2, help="torch CPU threads")
-    parser.add_argument("--no-contrastive", action="store_true", help="measure the BC-only step only")
-    parser.add_argument(
-        "--no-publish", action="store_true", help="do not write benchmarks/results/policy_*.md"
-    )
-    args = parser.parse_args()
+@dataclass
+class PolicyBenchConfig:
+    # Policy preset: small | paper.
+    config: str = "small"
+    # Torch device: cpu, cuda, cuda:1, ...
+    device: str = "cpu"
+    # Training batch size (default: 8 for small, 32 for paper).
+    batch_size: int | None = None
+    # Synthetic RGB-D cameras and their image size in pixels (square).
+    cameras: int = 4
+    camera_size: int = 128
+    # Timed training steps per variant (default: 5 on CPU, 20 on GPU; the median is reported), after 2 (CPU) /
+    # 5 (GPU) warm-up steps.
+    steps: int | None = None
+    # Timed select_action calls (default: 10 on CPU, 50 on GPU; the median is reported), after 2 warm-up calls.
+    reps: int | None = None
+    # torch CPU threads.
+    threads: int = 2
+    # Also time the Σ-agent step (BC + contrastive); false = the BC-only baseline alone.
+    contrastive: bool = True
+    # Write benchmarks/results/policy.md (+ .json), the fragment RESULTS.md includes.
+    publish: bool = True
+    # Where the fragment goes (default: benchmarks/results).
+    results_dir: Path | None = None
 
-    torch.set_num_threads(args.threads)
+    def __post_init__(self) -> None:
+        if self.config not in ("small", "paper"):
+            raise ValueError(f"--config must be small or paper, got {self.config!r}")
+        if self.device.startswith("cuda") and not torch.cuda.is_available():
+            raise ValueError(f"--device {self.device}: CUDA is not available on this machine")
+
+
+def build(cfg: PolicyBenchConfig, contrastive: bool, batch_size: int) -> Variant:
+    """The policy of the preset (``use_contrastive`` as given), its LAMB optimiser and synthetic inputs."""
+    cams = [f"cam{i}" for i in range(cfg.cameras)]
     torch.manual_seed(0)
-    gpu = args.device.startswith("cuda")
-    batch_size = args.batch_size or (32 if args.config == "paper" else 8)
-    steps = args.steps or (20 if gpu else 5)
-    reps = args.reps or (50 if gpu else 10)
-    cams = [f"cam{i}" for i in range(args.cameras)]
+    policy_cfg = SigmaConfig(
+        preset=cfg.config,
+        device=cfg.device,
+        input_features=features(cams, cfg.camera_size),
+        output_features={"action": PolicyFeature(FeatureType.ACTION, (9,))},
+        depth_unit="m",
+        scene_bounds=BOUNDS,
+        use_contrastive=contrastive,
+    )
+    policy = SigmaPolicy(policy_cfg).to(cfg.device)
+    optimizer = policy_cfg.get_optimizer_preset().build(policy.get_optim_params())
+    train_batch = synthetic_batch(cams, cfg.camera_size, batch_size, 2, cfg.device)
+    train_batch["action"] = torch.tensor(
+        [[0.0, 0.05, 0.85, 1, 0, 0, 0, 1, 0]] * batch_size, device=cfg.device
+    )
+    obs = synthetic_batch(cams, cfg.camera_size, 1, None, cfg.device)
+    return Variant(contrastive, policy, optimizer, train_batch, obs)
 
-    def measure(contrastive: bool) -> dict:
-        torch.manual_seed(0)
-        cfg = SigmaConfig(
-            preset=args.config,
-            device=args.device,
-            input_features=features(cams, args.camera_size),
-            output_features={"action": PolicyFeature(FeatureType.ACTION, (9,))},
-            depth_unit="m",
-            scene_bounds=BOUNDS,
-            use_contrastive=contrastive,
-        )
-        policy = SigmaPolicy(cfg).to(args.device)
-        train_batch = synthetic_batch(cams, args.camera_size, batch_size, 2, args.device)
-        train_batch["action"] = torch.tensor(
-            [[0.0, 0.05, 0.85, 1, 0, 0, 0, 1, 0]] * batch_size, device=args.device
-        )
-        samples_s = bench_train(policy, train_batch, steps, warmup=2 if not gpu else 5, device=args.device)
-        latency = bench_infer(
-            policy, synthetic_batch(cams, args.camera_size, 1, None, args.device), reps, 2, args.device
-        )
+
+def measure(cfg: PolicyBenchConfig, variants: list[Variant], steps: int, reps: int) -> list[dict]:
+    """Time training steps, then ``select_action`` calls, alternating between the variants step by step.
+
+    Alternating (A B A B ...) exposes every variant to the same load on a shared machine, so the ratio stays
+    meaningful when absolute times drift. Reports medians. GPU peak memory is taken per variant during its
+    warm-up steps (2 on CPU, 5 on GPU), before the interleaved timing.
+    """
+    gpu = cfg.device.startswith("cuda")
+    peak_gb = {}
+    for v in variants:
+        v.policy.train()
+        if gpu:
+            torch.cuda.reset_peak_memory_stats()
+        for _ in range(5 if gpu else 2):
+            train_step(v, cfg.device)
+        if gpu:
+            peak_gb[v.contrastive] = round(torch.cuda.max_memory_allocated() / 2**30, 2)
+    for _ in tqdm(range(steps), desc="train steps (all variants)", leave=False):
+        for v in variants:
+            v.train_s.append(train_step(v, cfg.device))
+    for v in variants:
+        v.policy.eval()
+    for i in tqdm(range(2 + reps), desc="select_action (all variants)", leave=False):
+        for v in variants:
+            seconds = infer_step(v, cfg.device)
+            if i >= 2:  # 2 warm-up calls
+                v.infer_s.append(seconds)
+    rows = []
+    for v in variants:
+        batch_size = len(v.train_batch["task"])
         row = {
-            "contrastive": contrastive,
-            "params_train": policy.network.num_parameters(),
-            "params_inference": policy.network.num_parameters(inference_only=True),
-            "train_samples_per_s": round(samples_s, 2),
-            "inference_ms_per_action": round(latency * 1000, 1),
+            "contrastive": v.contrastive,
+            "params_train": v.policy.network.num_parameters(),
+            "params_inference": v.policy.network.num_parameters(inference_only=True),
+            "train_samples_per_s": round(batch_size / statistics.median(v.train_s), 3),
+            "inference_ms_per_action": round(1000 * statistics.median(v.infer_s), 2),
+            "train_step_s": [round(t, 4) for t in v.train_s],
+            "inference_s": [round(t, 4) for t in v.infer_s],
         }
         if gpu:
-            row["peak_mem_gb"] = round(torch.cuda.max_memory_allocated() / 2**30, 2)
-        return row
+            row["peak_mem_gb"] = peak_gb[v.contrastive]
+        rows.append(row)
+    return rows
 
+
+def markdown(
+    cfg: PolicyBenchConfig, rows: list[dict], device: str, batch_size: int, steps: int, reps: int
+) -> str:
+    goal_ms = 20 if cfg.device.startswith("cuda") else 1000
+    base = rows[0]["train_samples_per_s"]
+    gpu_mem = "peak GPU memory (training) | " if "peak_mem_gb" in rows[0] else ""
+    lines = [
+        f"`{cfg.config}` preset on {device}; training batch {batch_size}, median of {steps} timed steps; inference "
+        f"batch 1, median of {reps} calls; the variants alternate step by step; {cfg.cameras} synthetic RGB-D cameras at {cfg.camera_size}². Training step = "
+        "point clouds, SE(3) augmentation, renders, network, losses, backward, LAMB step.",
+        "",
+        f"| variant | parameters (train / inference) | train samples/s | vs BC-only | {gpu_mem}"
+        f"ms per action | vs goal ({goal_ms} ms) |",
+        "|---|---|---|---|---|---|" + ("---|" if gpu_mem else ""),
+    ]
+    for r in rows:
+        name = (
+            "Σ-agent (BC + contrastive, current + goal render)" if r["contrastive"] else "BC only (baseline)"
+        )
+        ms = r["inference_ms_per_action"]
+        verdict = f"{ms / goal_ms:.2f}x the budget: {'met' if ms <= goal_ms else 'not met'}"
+        mem = f"{r['peak_mem_gb']:.2f} GiB | " if gpu_mem else ""
+        lines.append(
+            f"| {name} | {r['params_train'] / 1e6:.2f} M / {r['params_inference'] / 1e6:.2f} M | "
+            f"{r['train_samples_per_s']:.2f} | {r['train_samples_per_s'] / base:.2f}x | {mem}{ms:.1f} | {verdict} |"
+        )
+    return "\n".join(lines)
+
+
+def main(cfg: PolicyBenchConfig) -> list[dict]:
+    torch.set_num_threads(cfg.threads)
+    gpu = cfg.device.startswith("cuda")
+    batch_size = cfg.batch_size or (32 if cfg.config == "paper" else 8)
+    steps = cfg.steps or (20 if gpu else 5)
+    reps = cfg.reps or (50 if gpu else 10)
     if gpu:
         torch.backends.cuda.matmul.allow_tf32 = True
         torch.backends.cudnn.allow_tf32 = True
         torch.backends.cudnn.benchmark = True
-    # The baseline of the same run: the BC-only (RVT-style) step, which renders no goal and has no
-    # contrastive heads; the ratio is the cost of contrastive IL.
-    rows = [measure(False)] + ([] if args.no_contrastive else [measure(True)])
-    device = torch.cuda.get_device_name() if gpu else f"cpu, {args.threads} torch threads"
-    goal_ms = 20 if gpu else 1000
-    base = rows[0]["train_samples_per_s"]
-    lines = [
-        f"`{args.config}` preset on {device}; batch {batch_size}; {args.cameras} synthetic RGB-D cameras at "
-        f"{args.camera_size}²; training = clouds, SE(3) augmentation, renders, network, losses, backward, LAMB step.",
-        "",
-        "| variant | parameters (train / inference) | train samples/s | vs BC-only | ms per action (batch 1) |",
-        "|---|---|---|---|---|",
-    ]
-    for r in rows:
-        name = (
-            "Σ-agent (BC + contrastive, current + goal render)" if r["contrastive"] else "BC only (RVT-style)"
-        )
-        lines.append(
-            f"| {name} | {r['params_train'] / 1e6:.2f} M / {r['params_inference'] / 1e6:.2f} M | "
-            f"{r['train_samples_per_s']:.2f} | {r['train_samples_per_s'] / base:.2f}x | "
-            f"{r['inference_ms_per_action']:.1f} (goal <= {goal_ms} ms: "
-            f"{'met' if r['inference_ms_per_action'] <= goal_ms else 'not met'}) |"
-        )
-    table = "\n".join(lines)
+    # The baseline of the same run first: the BC-only (RVT-style) step, which renders no goal and has no
+    # contrastive heads; the ratio of the Σ-agent row to it is the cost of contrastive IL.
+    variants = [build(cfg, c, batch_size) for c in ([False, True] if cfg.contrastive else [False])]
+    rows = measure(cfg, variants, steps, reps)
+    device = torch.cuda.get_device_name(cfg.device) if gpu else f"CPU, {cfg.threads} torch threads"
+    table = markdown(cfg, rows, device, batch_size, steps, reps)
     print(json.dumps(rows, indent=2))
-    print(table)
-    if not args.no_publish:
+    print("\n" + table)
+    if cfg.publish:
         from pipelines.reporting import write_report
 
         write_report(
-            f"policy_{args.config}_{'cuda' if gpu else 'cpu'}",
-            f"Policy training and inference speed ({args.config}, {'GPU' if gpu else 'CPU'})",
+            "policy",
+            f"Policy training and inference speed ({cfg.config} preset, {'GPU' if gpu else 'CPU'})",
             table,
-            {"device": device, "batch_size": batch_size, "rows": rows},
+            {
+                "preset": cfg.config,
+                "device": device,
+                "batch_size": batch_size,
+                "steps": steps,
+                "reps": reps,
+                "rows": rows,
+            },
+            notes="Training speed is compared with the BC-only step of the same preset measured in the same run "
+            "(`use_contrastive=False`); inference latency with the goal of issue 6 (<= 1 s per action on CPU, "
+            "<= 20 ms on a GPU). Synthetic inputs: no dataset reads are timed (see the loader section).",
+            results_dir=cfg.results_dir,
         )
     last = rows[-1]
-    print(
-        f"bench_policy: {args.config} on {device}: {last['train_samples_per_s']} train samples/s "
-        f"(batch {batch_size}), {last['inference_ms_per_action']} ms per action"
+    overhead = (
+        f", {rows[1]['train_samples_per_s'] / rows[0]['train_samples_per_s']:.2f}x BC-only"
+        if len(rows) > 1
+        else ""
     )
+    print(
+        f"bench_policy: {cfg.config} on {device}: {last['train_samples_per_s']:.2f} train samples/s "
+        f"(batch {batch_size}{overhead}), {last['inference_ms_per_action']:.1f} ms per action"
+    )
+    return rows
 
 
 if __name__ == "__main__":
-    main()
+    main(draccus.parse(PolicyBenchConfig))

@@ -5,8 +5,9 @@ brute-force reference renderer of the tests (every pixel tests every point, O(V 
 same on CUDA (renderer at batch 1, 8 and 32; reference at batch 1) when a GPU is available. The brute force
 is timed on ``ref_points`` points on CPU (its cost is linear in N; the table gives the measured time and the
 linear extrapolation to ``points``). Speed-ups are ratios of times measured in this run. After timing, the
-renderer's output is checked against the reference on each device. The Markdown table (with the command, the
-CPU affinity and the devices) is printed and written to ``output``.
+renderer's output is checked against the reference on each device. The Markdown table (with the CPU affinity and
+the devices) is printed and, with ``--publish true`` (default), written with the command and the machine to
+``benchmarks/results/renderer.md`` (+ ``.json``), the fragment ``RESULTS.md`` includes.
 
     python -m benchmarks.bench_renderer                     # from the repository root
     taskset -c 0,1 python -m benchmarks.bench_renderer --threads 2   # "2 CPU cores", as the goal is stated
@@ -15,10 +16,9 @@ CPU affinity and the devices) is printed and written to ``output``.
 from __future__ import annotations
 
 import os
-import sys
 import time
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import asdict, dataclass
 from pathlib import Path
 
 import draccus
@@ -44,8 +44,10 @@ class BenchRendererConfig:
     threads: int = 2
     # Skip the CUDA rows even if a GPU is available.
     cpu_only: bool = False
-    # Markdown file the table is written to ("" = print only).
-    output: str = "benchmarks/results/renderer.md"
+    # Write benchmarks/results/renderer.md (+ .json), the fragment RESULTS.md includes.
+    publish: bool = True
+    # Where the fragment goes (default: benchmarks/results).
+    results_dir: Path | None = None
 
 
 def _cloud(B: int, N: int, device: str) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
@@ -102,17 +104,32 @@ def main(cfg: BenchRendererConfig) -> list[tuple[str, str, int, int, float]]:
                 ("brute-force reference (x N linear, est.)", device, 1, cfg.points, ms * cfg.points / n_ref)
             )
 
-    lines = _markdown(cfg, rows, "cuda" in devices)
-    print("\n" + "\n".join(lines))
-    if cfg.output:
-        Path(cfg.output).parent.mkdir(parents=True, exist_ok=True)
-        Path(cfg.output).write_text("\n".join(lines) + "\n")
+    table = "\n".join(_markdown(cfg, rows, "cuda" in devices))
+    print("\n" + table)
     cpu8 = next(m for w, d, b, _, m in rows if w == "renderer" and d == "cpu" and b == 8)
     summary = f"CPU renderer at batch 8: {cpu8:.2f} ms per sample (goal <= 10 ms on 2 cores)"
     if "cuda" in devices:
         gpu32 = next(m for w, d, b, _, m in rows if w == "renderer" and d == "cuda" and b == 32)
         summary += f"; CUDA at batch 32: {gpu32:.3f} ms per sample (goal <= 0.3 ms on an H100)"
-    print(f"\n{summary}." + (f" Table written to {cfg.output}." if cfg.output else ""))
+    written = ""
+    if cfg.publish:
+        from pipelines.reporting import write_report
+
+        if "cuda" in devices:
+            notes = "CPU and CUDA rows measured in the same run."
+        elif cfg.cpu_only:
+            notes = "CPU rows only: the CUDA rows were skipped (`--cpu_only true`)."
+        else:
+            notes = (
+                "CPU rows only: CUDA was not available on this machine (run it on a GPU for the CUDA rows)."
+            )
+        keys = ("what", "device", "batch", "points", "ms_per_sample")
+        data = {"rows": [dict(zip(keys, r, strict=True)) for r in rows], "config": asdict(cfg)}
+        path = write_report(
+            "renderer", "Virtual-view renderer vs brute-force reference", table, data, notes, cfg.results_dir
+        )
+        written = f" Written to {path}."
+    print(f"\n{summary}.{written}")
     return rows
 
 
@@ -121,10 +138,6 @@ def _markdown(
 ) -> list[str]:
     affinity = sorted(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else []
     lines = [
-        "# Virtual-view renderer benchmark",
-        "",
-        f"Command: `{' '.join(getattr(sys, 'orig_argv', sys.argv))}`",
-        "",
         f"{cfg.points} points -> 5 x {cfg.img_size}^2 x 10 channels, radius {cfg.radius_px} px; torch "
         f"{torch.__version__}, {torch.get_num_threads()} CPU threads, CPU affinity {len(affinity)} cores "
         f"{affinity}" + (f", {torch.cuda.get_device_name()}" if cuda else "") + "; median of "
