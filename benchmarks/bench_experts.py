@@ -3,19 +3,22 @@
 For every (task, variation) and seed: reset (``reset_env``), run the expert without cameras, check the task's
 success; then reset to the same seed and replay **only the expert's keyframes** with ``KeyframeExecutor``
 (arm then gripper per keyframe), which is what a perfect keyframe policy would achieve with this executor.
-Failed episodes are counted with their reasons, never hidden. Prints a Markdown table.
+Failed episodes are counted with their reasons, never hidden. Prints a Markdown table with Wilson 95%
+intervals and, unless ``--publish false``, writes it with the raw numbers to ``benchmarks/results/experts.md``
+and ``.json`` (``benchmarks.report.write_report``).
 
-    python -m benchmarks.bench_experts --workers 2               # all 10 variations, 50 seeds each
-    python -m benchmarks.bench_experts --tasks lift,stack --seeds 5 --publish false
+    python -m benchmarks.bench_experts --seeds 50 --workers 1    # all 10 variations, 50 seeds each (~45 min)
+    python -m benchmarks.bench_experts --variations bread,can --seeds 20 --publish false
 """
 
 from __future__ import annotations
 
 import os
+import re
 import time
 from collections import Counter
 from concurrent.futures import ProcessPoolExecutor
-from dataclasses import asdict, dataclass, field
+from dataclasses import dataclass, field
 
 os.environ.setdefault("MUJOCO_GL", "egl")
 import draccus
@@ -23,8 +26,11 @@ import numpy as np
 from tqdm import tqdm
 
 import sigma_data  # noqa: F401  (headless GL before robosuite)
+from benchmarks.report import write_report
+from pipelines.evaluate import wilson_interval
 from sigma_data.control import EnvDriver, KeyframeExecutor
 from sigma_data.experts.base import ExpertFailure
+from sigma_data.mujoco_gl import quiet_robosuite
 from sigma_data.tasks import TASKS, get_task, get_variation, make_env, reset_env
 
 
@@ -48,14 +54,17 @@ class BenchConfig:
 
 @dataclass
 class VariationReport:
+    """Outcome of one (task, variation) over its seeds; ``steps``/``keyframes`` are of the successful demos."""
+
     task: str
     variation: str
     seeds: int
     successes: int = 0
     steps: list[int] = field(default_factory=list)  # of successful episodes
     keyframes: list[int] = field(default_factory=list)
-    failures: Counter = field(default_factory=Counter)  # reason -> count
+    failures: Counter = field(default_factory=Counter)  # short reason -> count
     failed_seeds: list[int] = field(default_factory=list)
+    failure_details: dict[int, str] = field(default_factory=dict)  # seed -> full reason
     replay_successes: int = 0
     replay_attempts: int = 0
     replay_steps: list[int] = field(default_factory=list)
@@ -63,15 +72,22 @@ class VariationReport:
     seconds: float = 0.0
 
 
-def _short(reason: str) -> str:
-    """The failure reason with its per-episode numbers replaced by N, so that equal causes count together."""
-    import re
+def short_reason(reason: str) -> str:
+    """Group failure messages: keep the text before the first colon after the exception name, drop the step count
+    of a stalled move and replace the remaining per-episode numbers by N.
 
-    reason = reason.split(":")[0] if ":" in reason else reason
-    return re.sub(r"\d+(\.\d+)?", "N", reason)
+    ``"ExpertFailure: waypoint 'grasp' not reached (stalled after 24 steps): position error 22.7 mm"`` ->
+    ``"ExpertFailure: waypoint 'grasp' not reached (stalled)"``.
+    """
+    name, sep, rest = reason.partition(": ")
+    head = f"{name}: {rest.split(':')[0]}" if sep and name.isidentifier() else reason.split(":")[0]
+    head = re.sub(r" \((\w+) after \d+ steps\)", r" (\1)", head)
+    return re.sub(r"\d+(\.\d+)?", "N", head)
 
 
 def run_variation(task_name: str, variation_name: str, seeds: list[int], replay: bool) -> VariationReport:
+    """Expert (and keyframe replay of the successful demos) of one variation over ``seeds``, without cameras."""
+    quiet_robosuite()  # also in worker processes
     task = get_task(task_name)
     variation = get_variation(task, variation_name)
     report = VariationReport(task_name, variation_name, len(seeds))
@@ -86,12 +102,13 @@ def run_variation(task_name: str, variation_name: str, seeds: list[int], replay:
                 ok = task.success(env, variation)
                 reason = "" if ok else "success check false at the end"
             except ExpertFailure as exc:
-                ok, reason = False, f"ExpertFailure: {_short(str(exc))}"
+                ok, reason = False, f"ExpertFailure: {exc}"
             if driver.num_steps > task.max_steps:
-                ok, reason = False, f"over budget ({driver.num_steps} > {task.max_steps} steps)"
+                ok, reason = False, f"over budget: {driver.num_steps} > {task.max_steps} steps"
             if not ok:
-                report.failures[reason] += 1
+                report.failures[short_reason(reason)] += 1
                 report.failed_seeds.append(seed)
+                report.failure_details[seed] = reason
                 continue
             report.successes += 1
             report.steps.append(driver.num_steps)
@@ -113,12 +130,14 @@ def run_variation(task_name: str, variation_name: str, seeds: list[int], replay:
 
 
 def _rate(k: int, n: int) -> str:
-    from pipelines.evaluate import wilson_interval
+    return f"{k}/{n} ({100 * k / n:.0f}%)" if n else "-"
 
+
+def _interval(k: int, n: int) -> str:
     if n == 0:
         return "-"
     lo, hi = wilson_interval(k, n)
-    return f"{k}/{n} ({100 * k / n:.0f}%, {100 * lo:.0f}–{100 * hi:.0f}%)"
+    return f"{100 * lo:.0f}–{100 * hi:.0f}%"
 
 
 def _mean(values: list[int]) -> str:
@@ -128,27 +147,57 @@ def _mean(values: list[int]) -> str:
 def markdown_table(reports: list[VariationReport]) -> str:
     """Per variation: expert success and keyframe-replay success with Wilson 95% intervals; then all variations."""
     lines = [
-        "| task | variation | expert success (95% CI) | steps/ep | keyframes/ep | keyframe replay of successful "
-        "demos (95% CI) | replay steps/ep | failures (reason: count) | failed seeds (r = replay) |",
-        "|---|---|---|---|---|---|---|---|---|",
+        "| task | variation | expert success | 95% CI | steps/ep | keyframes/ep | keyframe replay of successful "
+        "demos | 95% CI | replay steps/ep | failures (reason: count) | failed seeds (r = replay) |",
+        "|---|---|---|---|---|---|---|---|---|---|---|",
     ]
     for r in reports:
         reasons = "; ".join(f"{k}: {v}" for k, v in r.failures.most_common()) or "-"
         failed = ", ".join(map(str, r.failed_seeds + [f"r{s}" for s in r.replay_failed_seeds])) or "-"
         lines.append(
-            f"| {r.task} | {r.variation} | {_rate(r.successes, r.seeds)} | {_mean(r.steps)} | "
-            f"{_mean(r.keyframes)} | {_rate(r.replay_successes, r.replay_attempts)} | "
-            f"{_mean(r.replay_steps)} | {reasons} | {failed} |"
+            f"| {r.task} | {r.variation} | {_rate(r.successes, r.seeds)} | {_interval(r.successes, r.seeds)} | "
+            f"{_mean(r.steps)} | {_mean(r.keyframes)} | {_rate(r.replay_successes, r.replay_attempts)} | "
+            f"{_interval(r.replay_successes, r.replay_attempts)} | {_mean(r.replay_steps)} | {reasons} | {failed} |"
         )
     ok, n = sum(r.successes for r in reports), sum(r.seeds for r in reports)
     rok, rn = sum(r.replay_successes for r in reports), sum(r.replay_attempts for r in reports)
+    steps = [s for r in reports for s in r.steps]
+    replay_steps = [s for r in reports for s in r.replay_steps]
     lines.append(
-        f"| **all** | {len(reports)} variations | **{_rate(ok, n)}** | | | **{_rate(rok, rn)}** | | | |"
+        f"| **all variations** | {len(reports)} | **{_rate(ok, n)}** | {_interval(ok, n)} | {_mean(steps)} | | "
+        f"**{_rate(rok, rn)}** | {_interval(rok, rn)} | {_mean(replay_steps)} | | |"
     )
     return "\n".join(lines)
 
 
+def report_data(r: VariationReport) -> dict:
+    """The JSON record of one variation: counts, rates with Wilson 95% intervals, means and raw lists."""
+    return {
+        "task": r.task,
+        "variation": r.variation,
+        "seeds": r.seeds,
+        "successes": r.successes,
+        "success_rate": r.successes / r.seeds if r.seeds else None,
+        "success_ci95": list(wilson_interval(r.successes, r.seeds)),
+        "mean_steps": float(np.mean(r.steps)) if r.steps else None,
+        "mean_keyframes": float(np.mean(r.keyframes)) if r.keyframes else None,
+        "steps": r.steps,
+        "keyframes": r.keyframes,
+        "failures": dict(r.failures),
+        "failed_seeds": r.failed_seeds,
+        "failure_details": {str(k): v for k, v in r.failure_details.items()},
+        "replay_successes": r.replay_successes,
+        "replay_attempts": r.replay_attempts,
+        "replay_rate": r.replay_successes / r.replay_attempts if r.replay_attempts else None,
+        "replay_ci95": list(wilson_interval(r.replay_successes, r.replay_attempts)),
+        "replay_steps": r.replay_steps,
+        "replay_failed_seeds": r.replay_failed_seeds,
+        "seconds": round(r.seconds, 1),
+    }
+
+
 def main(cfg: BenchConfig) -> list[VariationReport]:
+    quiet_robosuite()
     task_names = [t for t in cfg.tasks.split(",") if t] or list(TASKS)
     keep = {v for v in cfg.variations.split(",") if v}
     jobs = []
@@ -173,22 +222,15 @@ def main(cfg: BenchConfig) -> list[VariationReport]:
     total = sum(r.seeds for r in reports)
     ok = sum(r.successes for r in reports)
     if cfg.publish:
-        from pipelines.reporting import write_report
-
-        data = [
-            {**asdict(r), "failures": dict(r.failures), "success_rate": r.successes / max(r.seeds, 1)}
-            for r in reports
-        ]
+        data = [report_data(r) for r in reports]
         notes = (
             f"{cfg.seeds} seeds per variation from seed {cfg.start_seed}; experts run without cameras on "
             "robosuite's OSC_POSE controller at 20 Hz. *Keyframe replay* resets the same seed and drives only the "
             "expert's keyframes with `KeyframeExecutor` (arm, then gripper per keyframe): what a perfect "
             "keyframe policy achieves with this executor. Targets (issue #3): >= 95% per variation, door >= 90%; "
-            "replay 100%."
+            "replay 100%. Failure reasons are grouped (the JSON keeps each failed seed's full message)."
         )
-        path = write_report(
-            "experts", "Scripted experts and the keyframe-replay upper bound", table, data, notes
-        )
+        path = write_report("experts", "Scripted experts and keyframe-replay upper bound", table, data, notes)
         print(f"report written to {path}")
     print(
         f"\nexperts: {ok}/{total} episodes succeeded over {len(reports)} variations "

@@ -31,6 +31,11 @@ from typing import Any, Protocol
 import numpy as np
 from scipy.spatial.transform import Rotation, Slerp
 
+# One definition each, shared with the recorder and the episode format; re-exported here for callers of the
+# motion primitives: ``canonical_quat`` (xyzw, w >= 0) and ``grip_site_pose`` (position, xyzw quaternion).
+from sigma_data.episode import canonical_quat
+from sigma_data.record import grip_site_pose
+
 # OSC_POSE delta scale of the default BASIC composite controller (output_max for input 1).
 POS_SCALE = 0.05  # metres per unit action per control step
 ROT_SCALE = 0.5  # radians per unit action per control step
@@ -40,6 +45,40 @@ GRIP_CLOSE = 1.0
 
 # Top-down grasp orientation: site x (finger closing axis) = world +y, site z (approach) = world -z.
 R_DOWN = np.array([[0.0, 1.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, -1.0]])
+
+
+__all__ = [
+    "GRIP_CLOSE",
+    "GRIP_OPEN",
+    "R_DOWN",
+    "Driver",
+    "EnvDriver",
+    "ExecutorConfig",
+    "GripperConfig",
+    "KeyframeExecutor",
+    "KeyframeResult",
+    "MoveResult",
+    "MoveStatus",
+    "ServoConfig",
+    "actuate_gripper",
+    "arm_joint_speed",
+    "body_pose",
+    "canonical_quat",
+    "closest_symmetric_yaw",
+    "grip_site_frame",
+    "grip_site_pose",
+    "gripper_width",
+    "hold",
+    "mat_to_quat",
+    "move_to",
+    "quat_to_mat",
+    "rotation_error",
+    "servo_action",
+    "site_yaw",
+    "top_down_quat",
+    "wrap_angle",
+    "yaw_rotation",
+]
 
 
 class Driver(Protocol):
@@ -53,13 +92,6 @@ class Driver(Protocol):
 # --------------------------------------------------------------------------------------------------
 # Pose helpers
 # --------------------------------------------------------------------------------------------------
-
-
-def canonical_quat(quat_xyzw: Sequence[float]) -> np.ndarray:
-    """Normalise an xyzw quaternion and flip it so that w >= 0."""
-    q = np.asarray(quat_xyzw, dtype=np.float64)
-    q = q / np.linalg.norm(q)
-    return -q if q[3] < 0 else q
 
 
 def mat_to_quat(rot: np.ndarray) -> np.ndarray:
@@ -103,8 +135,12 @@ def closest_symmetric_yaw(object_yaw: float, reference_yaw: float, period: float
     return float(object_yaw + k * period)
 
 
-def grip_site_pose(env: Any) -> tuple[np.ndarray, np.ndarray]:
-    """World pose of the grip site: position (3,) metres and rotation matrix (3, 3)."""
+def grip_site_frame(env: Any) -> tuple[np.ndarray, np.ndarray]:
+    """World pose of the grip site as position (3,) metres and rotation matrix (3, 3).
+
+    The servo works with rotation matrices; :func:`grip_site_pose` (re-exported from ``sigma_data.record``)
+    gives the same pose as position and xyzw quaternion.
+    """
     site_id = env.robots[0].eef_site_id["right"]
     pos = np.array(env.sim.data.site_xpos[site_id], dtype=np.float64)
     rot = np.array(env.sim.data.site_xmat[site_id], dtype=np.float64).reshape(3, 3)
@@ -146,7 +182,7 @@ def servo_action(env: Any, ref_pos: np.ndarray, ref_rot: np.ndarray, grip: float
     Errors are computed in the world frame and rotated into the robot base frame, then scaled to the
     controller's unit action and clipped to [-1, 1].
     """
-    pos, rot = grip_site_pose(env)
+    pos, rot = grip_site_frame(env)
     base_rot_t = _base_rotation(env).T
     dpos = base_rot_t @ (ref_pos - pos) / POS_SCALE
     drot = base_rot_t @ Rotation.from_matrix(ref_rot @ rot.T).as_rotvec() / ROT_SCALE
@@ -219,7 +255,7 @@ def move_to(
     env = driver.env
     target_pos = np.asarray(pos, dtype=np.float64)
     target_rot = quat_to_mat(quat_xyzw)
-    ref_pos, ref_rot = grip_site_pose(env)
+    ref_pos, ref_rot = grip_site_frame(env)
 
     # Geodesic interpolation between the start and target orientations, walked at a bounded rate.
     total_angle = rotation_error(target_rot, ref_rot)
@@ -245,7 +281,7 @@ def move_to(
         driver.step(servo_action(env, ref_pos, ref_rot, grip))
         steps += 1
 
-        cur_pos, cur_rot = grip_site_pose(env)
+        cur_pos, cur_rot = grip_site_frame(env)
         pos_err = float(np.linalg.norm(target_pos - cur_pos))
         rot_err = rotation_error(target_rot, cur_rot)
         if (
@@ -266,7 +302,7 @@ def move_to(
             status = MoveStatus.STALLED
             break
 
-    cur_pos, cur_rot = grip_site_pose(env)
+    cur_pos, cur_rot = grip_site_frame(env)
     return MoveResult(
         status=status,
         steps=steps,
@@ -295,7 +331,7 @@ def actuate_gripper(driver: Driver, open: bool, config: GripperConfig = GripperC
     """
     env = driver.env
     grip = GRIP_OPEN if open else GRIP_CLOSE
-    hold_pos, hold_rot = grip_site_pose(env)
+    hold_pos, hold_rot = grip_site_frame(env)
     width0 = prev = gripper_width(env)
     moved = False
     rest = 0
@@ -313,7 +349,7 @@ def actuate_gripper(driver: Driver, open: bool, config: GripperConfig = GripperC
 def hold(driver: Driver, steps: int, grip: float) -> None:
     """Hold the current grip-site pose for ``steps`` control steps with gripper command ``grip``."""
     grip = _validate_grip(grip)
-    hold_pos, hold_rot = grip_site_pose(driver.env)
+    hold_pos, hold_rot = grip_site_frame(driver.env)
     for _ in range(steps):
         driver.step(servo_action(driver.env, hold_pos, hold_rot, grip))
 
@@ -347,7 +383,7 @@ class EnvDriver:
         if not self.actions:
             raise RuntimeError("mark_keyframe() called before any step()")
         self.env.sim.forward()  # site poses lag qpos by one substep after env.step
-        pos, rot = grip_site_pose(self.env)
+        pos, rot = grip_site_frame(self.env)
         self.keyframes.append(
             np.concatenate([pos, mat_to_quat(rot), [float(gripper_open), float(ignore_collision)]])
         )
@@ -413,7 +449,7 @@ class KeyframeExecutor:
         steps = 0
         cfg = self.config
         if cfg.use_via_point and not ignore_collision:
-            cur_pos, cur_rot = grip_site_pose(self.driver.env)
+            cur_pos, cur_rot = grip_site_frame(self.driver.env)
             if abs(pos[2] - cur_pos[2]) > cfg.via_min_height_change:
                 via_z = max(pos[2], cur_pos[2]) + cfg.via_height
                 up = move_to(

@@ -10,7 +10,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from sigma_data.control import body_pose, closest_symmetric_yaw, grip_site_pose, site_yaw, top_down_quat
+from sigma_data.control import body_pose, closest_symmetric_yaw, grip_site_frame, site_yaw, top_down_quat
 from sigma_data.experts.base import EpisodeRecorder, WaypointArm, check_grasp
 
 if TYPE_CHECKING:
@@ -28,7 +28,7 @@ def object_yaw(rot: np.ndarray) -> float:
 
 def cube_grasp_quat(env, cube_rot: np.ndarray) -> np.ndarray:
     """Top-down grip-site quaternion closing across two cube faces, the one nearest the current hand yaw."""
-    yaw = closest_symmetric_yaw(object_yaw(cube_rot), site_yaw(grip_site_pose(env)[1]), np.pi / 2)
+    yaw = closest_symmetric_yaw(object_yaw(cube_rot), site_yaw(grip_site_frame(env)[1]), np.pi / 2)
     return top_down_quat(yaw)
 
 

@@ -1,6 +1,7 @@
 """NutAssembly expert: grasp the named nut by its handle and drop it over its own peg.
 
-Waypoints (ignore_collision label): above the handle +8 cm (0) -> handle (1) -> close (1) -> lift the nut
+Waypoints (ignore_collision label): 8 cm above the grasp point (0) -> the grasp point on the handle, 8 mm
+beyond the handle site away from the nut (1) -> close (1) -> lift the nut
 to 25 cm above the table (0) -> turn the hand about the vertical so the nut hangs away from the robot, on
 the +x side of the handle where the wrist allows (0) -> nut centre over the peg, 4 cm above its top, corrected in
 closed loop from the measured nut position (<= 4 iterations, 3 mm; one keyframe) (0) -> down until the nut
@@ -19,7 +20,7 @@ import numpy as np
 from sigma_data.control import (
     body_pose,
     closest_symmetric_yaw,
-    grip_site_pose,
+    grip_site_frame,
     site_yaw,
     top_down_quat,
     wrap_angle,
@@ -32,6 +33,10 @@ if TYPE_CHECKING:
 
 PREGRASP_HEIGHT = 0.08
 GRASP_OFFSET = 0.003  # grip site above the handle centre (fingertips reach ~9 mm below the site)
+# Grip site this far beyond the handle site, away from the nut: the finger pads (+-11 mm along the handle) then
+# clear the nut's ring by >= 5 mm (square nut: ring edge 43.75 mm, handle site 54 mm, handle end 79 mm from
+# the centre); grasping at the handle site let a finger land on the ring corner and push the nut away.
+HANDLE_OUTWARD = 0.008
 LIFT_ABOVE_TABLE = 0.25
 HOVER_ABOVE_PEG = 0.04  # nut bottom above the peg top while aligning
 PEG_HALF_HEIGHT = 0.10
@@ -94,10 +99,11 @@ def nut_assembly_expert(recorder: EpisodeRecorder, variation: Variation, rng: np
     handle = np.array(env.sim.data.site_xpos[env.sim.model.site_name2id(nut.important_sites["handle"])])
     handle_yaw = float(np.arctan2(*(handle - centre)[1::-1]))
     hang = HANG_DIRECTIONS[variation.params["nut"]]
-    yaw, turn = plan_yaws(handle_yaw, site_yaw(grip_site_pose(env)[1]), wrist_angle(env), hang)
+    yaw, turn = plan_yaws(handle_yaw, site_yaw(grip_site_frame(env)[1]), wrist_angle(env), hang)
     quat = top_down_quat(yaw)
 
-    grasp = handle + [0, 0, GRASP_OFFSET]
+    outward = (handle - centre) * [1, 1, 0]
+    grasp = handle + HANDLE_OUTWARD * outward / np.linalg.norm(outward) + [0, 0, GRASP_OFFSET]
     arm.move("pregrasp", grasp + [0, 0, PREGRASP_HEIGHT], quat, ignore_collision=False)
     arm.move("grasp", grasp, quat, ignore_collision=True)
     arm.grip(open=False)
@@ -105,14 +111,14 @@ def nut_assembly_expert(recorder: EpisodeRecorder, variation: Variation, rng: np
     arm.move("lift", [*grasp[:2], table_z + LIFT_ABOVE_TABLE], quat, ignore_collision=False)
 
     quat = top_down_quat(yaw + turn)
-    site, _ = grip_site_pose(env)
+    site, _ = grip_site_frame(env)
     arm.move("turn", site, quat, ignore_collision=False)
     check_grasp(env, nut, f"{variation.params['nut']} nut (after the turn)")
 
     # Hover the nut centre over the peg, re-measuring the in-hand offset (the nut swings and slips a little).
     hover_z = peg_top + HOVER_ABOVE_PEG + NUT_HALF_THICKNESS
     for _ in range(ALIGN_ITERATIONS):
-        site, _ = grip_site_pose(env)
+        site, _ = grip_site_frame(env)
         in_hand = body_pose(env, nut.root_body)[0] - site
         target = np.array([*(peg_pos[:2] - in_hand[:2]), hover_z - in_hand[2]])
         arm.move(
@@ -127,7 +133,7 @@ def nut_assembly_expert(recorder: EpisodeRecorder, variation: Variation, rng: np
         )
     recorder.mark_keyframe(arm.gripper_open, False)
 
-    site, _ = grip_site_pose(env)
+    site, _ = grip_site_frame(env)
     in_hand = body_pose(env, nut.root_body)[0] - site
     place = np.array([*site[:2], table_z + RELEASE_ABOVE_TABLE - in_hand[2]])
     arm.move("insert", place, quat, ignore_collision=True, allow_stall=True, pos_tol=0.03)

@@ -15,7 +15,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from sigma_data.control import body_pose, closest_symmetric_yaw, grip_site_pose, site_yaw, top_down_quat
+from sigma_data.control import body_pose, closest_symmetric_yaw, grip_site_frame, site_yaw, top_down_quat
 from sigma_data.experts.base import EpisodeRecorder, WaypointArm, check_grasp
 from sigma_data.experts.lift import GRASP_OFFSET, PREGRASP_HEIGHT, object_yaw
 from sigma_data.tasks.stack import cube, cube_half_size
@@ -49,7 +49,7 @@ def stack_expert(recorder: EpisodeRecorder, variation: Variation, rng: np.random
     bottom_pos, _ = body_pose(env, bottom.root_body)
 
     yaw = grasp_yaw_away_from(
-        object_yaw(top_rot), bottom_pos[:2] - top_pos[:2], site_yaw(grip_site_pose(env)[1])
+        object_yaw(top_rot), bottom_pos[:2] - top_pos[:2], site_yaw(grip_site_frame(env)[1])
     )
     quat = top_down_quat(yaw)
     arm.move("pregrasp", top_pos + [0, 0, PREGRASP_HEIGHT], quat, ignore_collision=False)
@@ -61,15 +61,15 @@ def stack_expert(recorder: EpisodeRecorder, variation: Variation, rng: np.random
     bottom_top = bottom_pos[2] + h_bottom
     # Site height that puts the held cube's bottom `gap` above the bottom cube (grasp offset below the centre).
     site_z = bottom_top + h_top - GRASP_OFFSET
-    site_pos, _ = grip_site_pose(env)
+    site_pos, _ = grip_site_frame(env)
     arm.move("lift", [*site_pos[:2], site_z + CLEARANCE], quat, ignore_collision=False)
 
     in_hand = (
-        body_pose(env, top.root_body)[0] - grip_site_pose(env)[0]
+        body_pose(env, top.root_body)[0] - grip_site_frame(env)[0]
     )  # held cube centre relative to the site
     above = np.array([*(bottom_pos[:2] - in_hand[:2]), bottom_top + h_top + CLEARANCE - in_hand[2]])
     arm.move("above_bottom", above, quat, ignore_collision=False)
-    in_hand = body_pose(env, top.root_body)[0] - grip_site_pose(env)[0]
+    in_hand = body_pose(env, top.root_body)[0] - grip_site_frame(env)[0]
     place = np.array([*(bottom_pos[:2] - in_hand[:2]), bottom_top + h_top + PLACE_GAP - in_hand[2]])
     arm.move("place", place, quat, ignore_collision=True)
     arm.grip(open=True)

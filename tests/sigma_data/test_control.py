@@ -12,6 +12,7 @@ from sigma_data.control import (
     actuate_gripper,
     canonical_quat,
     closest_symmetric_yaw,
+    grip_site_frame,
     grip_site_pose,
     gripper_width,
     mat_to_quat,
@@ -43,15 +44,30 @@ def test_quaternion_helpers_are_xyzw_with_nonnegative_w():
     assert closest_symmetric_yaw(0.1, 1.5, np.pi / 2) == pytest.approx(0.1 + np.pi / 2)
 
 
+def test_pose_helpers_are_shared_with_the_recorder(lift):
+    """control re-exports the one definition of ``grip_site_pose`` / ``canonical_quat``; frame == pose."""
+    import sigma_data.episode
+    import sigma_data.record
+
+    assert grip_site_pose is sigma_data.record.grip_site_pose
+    assert canonical_quat is sigma_data.episode.canonical_quat
+    task, env = lift
+    reset_env(env, task, task.variations[0], seed=1)
+    pos, quat = grip_site_pose(env)
+    frame_pos, rot = grip_site_frame(env)
+    np.testing.assert_allclose(pos, frame_pos)
+    assert rotation_error(quat_to_mat(quat), rot) < 1e-9 and quat[3] >= 0
+
+
 def test_move_to_converges_within_tolerance(lift):
     task, env = lift
     reset_env(env, task, task.variations[0], seed=0)
-    start, _ = grip_site_pose(env)
+    start, _ = grip_site_frame(env)
     target = start + [0.05, -0.04, -0.06]
     quat = top_down_quat(0.4)
     result = move_to(EnvDriver(env), target, quat, grip=-1.0)
     assert result.status == MoveStatus.CONVERGED
-    pos, rot = grip_site_pose(env)
+    pos, rot = grip_site_frame(env)
     assert np.linalg.norm(pos - target) < 0.004
     assert rotation_error(rot, quat_to_mat(quat)) < 0.04
     assert result.steps < 60
@@ -60,7 +76,7 @@ def test_move_to_converges_within_tolerance(lift):
 def test_move_to_stalls_against_the_table(lift):
     task, env = lift
     reset_env(env, task, task.variations[0], seed=0)
-    start, _ = grip_site_pose(env)
+    start, _ = grip_site_frame(env)
     result = move_to(EnvDriver(env), [start[0], start[1] + 0.15, 0.70], top_down_quat(0.0), grip=-1.0)
     assert result.status in (MoveStatus.STALLED, MoveStatus.BUDGET)
     assert result.pos_error > 0.05  # the table (top at z = 0.8) blocks the way down
