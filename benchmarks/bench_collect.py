@@ -4,11 +4,14 @@ Baseline: robosuite env with camera observations every step (``use_camera_obs=Tr
 settings), the same scripted expert, every step's observation written frame by frame (``add_frame``) into a dense
 LeRobot dataset with the same features and encoders. sigma: record without rendering, replay states, render only
 stored frames with the fast settings. Every run goes in a fresh process, so its peak resident memory
-(``ru_maxrss`` of the process and of its largest child) is its own. All measured in the same run; prints a
-Markdown table of ratios and writes it to ``benchmarks/results/collect.md`` (+ ``.json``).
+(``ru_maxrss`` of the process and of its largest child) is its own; each clock starts after the same imports
+and includes building the env(s), creating and finalizing the datasets (sigma: and merging the shards). The
+scaling rows (1 worker vs ``--workers``) collect twice as many episodes in shards of 10, as ``sigma-data collect``
+does by default. All measured in the same run; prints a Markdown table of ratios and writes it to
+``benchmarks/results/collect.md`` (+ ``.json``).
 
-    python -m benchmarks.bench_collect                      # lift, 4 episodes, 4 RGB-D cameras at 128x128
-    python -m benchmarks.bench_collect --episodes 20        # the RESULTS.md run
+    python -m benchmarks.bench_collect                      # lift, 4 episodes (8 scaling), 4 RGB-D cameras at 128x128
+    python -m benchmarks.bench_collect --episodes 20 --workers 2   # the RESULTS.md run (~20 min on 2 cores)
     python -m benchmarks.bench_collect --task=stack --episodes=6 --workers=2 --publish false
 """
 
@@ -46,6 +49,10 @@ class BenchConfig:
     size: int = 128
     # Worker count for the scaling row (compared with 1 worker, keyframe dataset).
     workers: int = 2
+    # Episodes of the two scaling rows (1 worker vs `workers`; 0 = twice `episodes`), in shards of `shard_size`
+    # as `sigma-data collect` cuts them by default.
+    scaling_episodes: int = 0
+    shard_size: int = 10
     # Where the datasets go (default: a temporary directory).
     workdir: Path | None = None
     # Write benchmarks/results/collect.md (+ .json), the fragment RESULTS.md includes.
@@ -104,19 +111,20 @@ class BaselineDriver:
 
 
 def run_baseline(cfg: BenchConfig, root: Path) -> dict:
+    preload()
     import robosuite as suite
-    from lerobot.configs.video import DepthEncoderConfig
     from lerobot.datasets.lerobot_dataset import LeRobotDataset
     from robosuite.controllers import load_composite_controller_config
 
     from sigma_data.experts.base import ExpertFailure
     from sigma_data.tasks import get_task, reset_env
     from sigma_data.tasks.registry import CONTROL_FREQ, CONTROLLER, ROBOT
-    from sigma_data.writers import DatasetLayout, DenseWriter
+    from sigma_data.writers import DatasetLayout, DenseWriter, depth_encoder_config
 
     cams = tuple(c for c in cfg.cameras.split(","))
     task = get_task(cfg.task)
     variation = task.variations[0]
+    start = time.perf_counter()  # like a sigma run: building the env and creating the dataset count
     np.random.seed(0)
     env = suite.make(
         task.env_name,
@@ -142,10 +150,9 @@ def run_baseline(cfg: BenchConfig, root: Path) -> dict:
         root=root,
         robot_type="panda",
         streaming_encoding=True,
-        depth_encoder=DepthEncoderConfig(depth_min=0.02, depth_max=3.0),
+        depth_encoder=depth_encoder_config(),  # the encoder sigma's writers use
         video_backend="pyav",
     )
-    start = time.perf_counter()
     kept = steps = 0
     write_s = 0.0
     try:
@@ -174,8 +181,20 @@ def run_baseline(cfg: BenchConfig, root: Path) -> dict:
     return {"wall": wall, "kept": kept, "steps": steps, "write_s": write_s}
 
 
+def preload() -> None:
+    """Import what both kinds of run use before their clocks start, so neither row pays for imports."""
+    import lerobot.datasets.aggregate
+    import lerobot.datasets.lerobot_dataset  # noqa: F401
+    import robosuite  # noqa: F401
+
+    import sigma_data.experts.base
+    import sigma_data.record
+    import sigma_data.tasks  # noqa: F401
+
+
 def run_sigma(c: CollectConfig) -> dict:
     """One ``sigma-data collect`` run; the numbers of the table row (plain data, so it crosses processes)."""
+    preload()
     s = collect(c)
     return {
         "kept": s.kept,
@@ -234,11 +253,19 @@ def main() -> None:
 
     b = isolated(run_baseline, cfg, work / "baseline")
     base_rate = b["kept"] / b["wall"] * 60
-    runs.append({"run": "robosuite loop, cameras every step, dense written", **b, "vs_baseline": 1.0})
+    runs.append(
+        {
+            "run": "robosuite loop, cameras every step, dense written",
+            "episodes": cfg.episodes,
+            **b,
+            "vs_baseline": 1.0,
+        }
+    )
     runs[-1]["notes"] = f"writer {b['write_s']:.1f} s of {b['wall']:.1f} s"
 
     def sigma(name: str, **kw) -> dict:
-        r = isolated(run_sigma, replace(base, output_dir=work / name, **kw))
+        c = replace(base, output_dir=work / name, **kw)
+        r = {"episodes": c.episodes, **isolated(run_sigma, c)}
         r["vs_baseline"] = r["kept"] / r["wall"] * 60 / base_rate
         r["notes"] = (
             f"render {1000 * r['render_s'] / max(r['frames'], 1):.1f} ms/frame, "
@@ -249,21 +276,28 @@ def main() -> None:
 
     sigma("sigma keyframe", dense=False)
     sigma("sigma dense", keyframe=False)
-    one = sigma("sigma keyframe, 1 worker, 1-episode shards", dense=False, shard_size=1)
-    many = sigma(f"sigma keyframe, {cfg.workers} workers", dense=False, shard_size=1, workers=cfg.workers)
+    n, size = cfg.scaling_episodes or 2 * cfg.episodes, cfg.shard_size
+    scaling = {"dense": False, "episodes": n, "shard_size": size}
+    one = sigma(f"sigma keyframe, {n} episodes in shards of {size}, 1 worker", **scaling)
+    many = sigma(
+        f"sigma keyframe, {n} episodes in shards of {size}, {cfg.workers} workers",
+        workers=cfg.workers,
+        **scaling,
+    )
     many["notes"] = (
         f"{many['kept'] / many['wall'] / (one['kept'] / one['wall']):.2f}x vs 1 worker; " + many["notes"]
     )
 
     lines = [
-        f"{cfg.task}, {cfg.episodes} episodes per run (seeds 0-{cfg.episodes - 1}), cameras {cfg.cameras} at "
+        f"{cfg.task}, {cfg.episodes} episodes per run (seeds 0-{cfg.episodes - 1}; the scaling rows "
+        f"{cfg.scaling_episodes or 2 * cfg.episodes}), cameras {cfg.cameras} at "
         f"{cfg.size}x{cfg.size}; each run in a fresh process.",
         "",
-        "| run | episodes kept / run | wall s | episodes/min | vs baseline | peak RSS MiB (process / largest "
+        "| run | episodes kept / tried | wall s | episodes/min | vs baseline | peak RSS MiB (process / largest "
         "child) | notes |",
         "|---|---|---|---|---|---|---|",
         *(
-            f"| {r['run']} | {r['kept']} / {cfg.episodes} | {r['wall']:.1f} | {r['kept'] / r['wall'] * 60:.2f} | "
+            f"| {r['run']} | {r['kept']} / {r['episodes']} | {r['wall']:.1f} | {r['kept'] / r['wall'] * 60:.2f} | "
             f"{r['vs_baseline']:.2f}x | {r['peak_mib']:.0f} / "
             f"{r['peak_child_mib']:.0f} | {r['notes']} |"
             for r in runs

@@ -8,7 +8,7 @@ A fragment that does not exist yet is shown as "not measured yet" with the comma
 silently dropped; a benchmark that fails is reported with its exit status and command, and the others still run.
 Numbers come only from those runs.
 
-    sigma-results                                  # collect, loader, renderer, policy (~20 min on 2 CPU cores)
+    sigma-results                                  # collect, loader, renderer, policy (~30 min on 2 CPU cores)
     sigma-results --include_slow true              # also experts (~45 min) and the ablation (~1 h)
     sigma-results --stitch_only true               # run nothing, only rebuild RESULTS.md
     sigma-results --only loader,policy             # comma-separated names (also --skip)
@@ -61,11 +61,11 @@ BENCHMARKS: tuple[Benchmark, ...] = (
         takes_results_dir=False,
     ),
     # Times: measured on the project's 2-core machine while it was busy with training runs (quiet: less).
-    # collect ~15 min (the robosuite-camera baseline alone ~40 s per episode; --episodes 20 ~ 28 min).
+    # collect ~20 min (the robosuite-camera baseline alone ~25 s per episode).
     Benchmark(
         "collect",
         "Collection vs robosuite's own camera loop",
-        "python -m benchmarks.bench_collect --episodes 10 --workers 2",
+        "python -m benchmarks.bench_collect --episodes 20 --workers 2",
     ),
     # loader < 1 min (a synthetic dataset; `--root <keyframe dataset>` for a real one).
     Benchmark(
@@ -195,7 +195,7 @@ def stitch(results_dir: Path, failures: dict[str, tuple[int, str]] | None = None
         "its section, on the machine described there; speeds are ratios against a baseline measured in the same",
         "run. Absolute times depend on the machine and its load: compare ratios, or runs on the same machine.",
         "",
-        "Regenerate with one command: `sigma-results` (the fast benchmarks, ~20 min on 2 CPU cores, then this file);",
+        "Regenerate with one command: `sigma-results` (the fast benchmarks, ~30 min on 2 CPU cores, then this file);",
         "`sigma-results --include_slow true` also re-runs the expert and ablation runs; `sigma-results "
         "--stitch_only true` only rebuilds this file from `benchmarks/results/`.",
         "",

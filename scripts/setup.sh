@@ -2,7 +2,7 @@
 # One-shot set-up for sigma on a fresh machine or a laptop:
 #   1. find Python 3.12 (PATH first, then pyenv's installed versions),
 #   2. install the Debian packages for headless MuJoCo rendering when missing and we may (root, apt),
-#   3. create .venv and install sigma editable with its dev extras,
+#   3. create .venv and install sigma editable with its dev and cluster (DataTrove) extras,
 #   4. pick MUJOCO_GL (egl, else osmesa) by actually opening a context, and record the choice in the venv.
 set -euo pipefail
 
@@ -55,7 +55,7 @@ fi
 
 say "installing sigma and its stack into $VENV (first run downloads torch, LeRobot, robosuite: a few minutes)"
 "$VENV/bin/python" -m pip install -q --disable-pip-version-check --upgrade pip >/dev/null
-"$VENV/bin/python" -m pip install -q --disable-pip-version-check -e ".[dev]" 2>&1 \
+"$VENV/bin/python" -m pip install -q --disable-pip-version-check -e ".[dev,cluster]" 2>&1 \
   | grep -v -E "^WARNING: Location 'file:" || true
 "$VENV/bin/python" -m pip check >/dev/null || { "$VENV/bin/python" -m pip check; exit 1; }
 

@@ -10,24 +10,29 @@ Scale and robustness:
 
 * Work is cut into shards of seeds (``shard_size`` seeds of one task variation). Each shard is written by one
   worker process into ``<output_dir>/shards/<name>/{dense,keyframe}`` and ends with a ``shard.json`` marker;
-  the shards are then merged with LeRobot's ``aggregate_datasets`` into ``<output_dir>/{dense,keyframe}``.
+  the shards are then merged with LeRobot's ``aggregate_datasets`` into ``<output_dir>/{dense,keyframe}`` (a
+  single shard is copied). A process builds one env per task and reuses it for all its shards.
 * Rerunning skips shards whose marker matches the configuration and whose datasets load with the recorded
   episode counts; anything else (an interrupted shard) is deleted and redone. The merge is redone every run.
 * Same configuration and seeds give identical data: the model (e.g. Lift's random cube size, drawn when the
   env is built) is built under ``model_seed``, every episode under its own seed.
-* ``executor = "datatrove"`` runs the same shards through DataTrove's ``LocalPipelineExecutor`` (swap in its
-  ``SlurmPipelineExecutor`` for clusters); it needs the optional dependency ``datatrove``.
+* ``executor = "datatrove"`` runs the same shards through DataTrove's ``LocalPipelineExecutor``
+  (:mod:`sigma_data.cluster`; on a Slurm cluster its step runs under ``SlurmPipelineExecutor``, see
+  ``docs/cluster.md``); it needs the optional extra ``cluster`` (``datatrove``).
 """
 
 from __future__ import annotations
 
+import atexit
 import contextlib
 import hashlib
 import json
 import multiprocessing as mp
 import queue
 import shutil
+import threading
 import time
+from collections import deque
 from collections.abc import Callable
 from concurrent.futures import ProcessPoolExecutor
 from dataclasses import asdict, dataclass, field
@@ -245,16 +250,48 @@ def build_env(task: Any, render: RenderConfig, model_seed: int) -> Any:
     )
 
 
-def check_cameras_exist(cfg: CollectConfig, shards: list[ShardSpec]) -> None:
-    """Fail fast, before any worker starts, on a camera no scene of the run has (builds one env per task)."""
+# Envs built in this process, by (task, render settings, model seed). Building a robosuite env compiles its
+# model (~1.5 s); every shard of a task in one process reuses it. ``reset_env`` makes each episode depend on its
+# seed only, not on what the env ran before (the resume test compares a reused env with a fresh one).
+_ENVS: dict[tuple[str, RenderConfig, int], Any] = {}
+
+
+def cached_env(task_name: str, render: RenderConfig, model_seed: int) -> Any:
+    """This process's env for ``task_name`` (built on first use; :func:`close_envs` closes them all)."""
     from sigma_data.tasks import get_task
 
-    for task_name in dict.fromkeys(s.task for s in shards):
-        env = build_env(get_task(task_name), RenderConfig(cameras=()), cfg.model_seed)  # no renderer needed
-        try:
-            known = set(env.sim.model.camera_names)
-        finally:
+    key = (task_name, render, model_seed)
+    if key not in _ENVS:
+        if not _ENVS:
+            atexit.register(close_envs)  # spawned workers exit through sys.exit: close GL contexts first
+        _ENVS[key] = build_env(get_task(task_name), render, model_seed)
+    return _ENVS[key]
+
+
+def close_envs() -> None:
+    """Close and forget every env :func:`cached_env` built in this process."""
+    while _ENVS:
+        _, env = _ENVS.popitem()
+        with contextlib.suppress(Exception):
             env.close()
+
+
+def check_cameras_exist(cfg: CollectConfig, task_names: list[str], reuse: bool) -> None:
+    """Raise ``ValueError`` naming the first task whose scene lacks a requested camera, before any shard runs
+    (or, for worker processes, while they start). With ``reuse`` the envs the shards of this process will use
+    are built now (nothing extra); otherwise a throwaway env without a renderer is built per task."""
+    from sigma_data.tasks import get_task
+
+    for task_name in task_names:
+        if reuse:
+            env = cached_env(task_name, cfg.render_config(), cfg.model_seed)
+            known = set(env.sim.model.camera_names)
+        else:
+            env = build_env(get_task(task_name), RenderConfig(cameras=()), cfg.model_seed)  # no renderer
+            try:
+                known = set(env.sim.model.camera_names)
+            finally:
+                env.close()
         unknown = [c for c in cfg.camera_list() if c not in known]
         if unknown:
             raise ValueError(
@@ -341,86 +378,83 @@ def collect_shard(
     variation = get_variation(task, spec.variation)
     render = cfg.render_config()
     result = ShardResult(spec.name, fingerprint=cfg.fingerprint())
-    env = build_env(task, render, cfg.model_seed)
-    try:
-        rig = CameraRig(env, render)
-        layout = DatasetLayout(render.cameras, render.height, render.width)
-        # Static K/E go into the feature info only when one task (one scene) fills the dataset: shards of
-        # different scenes would disagree and LeRobot's merge requires identical features.
-        static = rig.static_calibration() if len(cfg.task_names()) == 1 else None
-        common = {
-            "layout": layout,
-            "provenance": {**_provenance(cfg, [spec.task]), "static_calibration": _static_json(rig)},
-            "static_calibration": static,
-        }
-        with contextlib.ExitStack() as stack:
-            writers: dict[str, SigmaWriter] = {}
-            if cfg.dense:
-                writers["dense"] = stack.enter_context(
-                    DenseWriter(
-                        shard_dir / "dense",
-                        use_videos=cfg.dense_video,
-                        repo_id=f"{cfg.repo_id}_dense",
-                        **common,
-                    )
+    env = cached_env(spec.task, render, cfg.model_seed)  # stays open for the task's next shard
+    rig = CameraRig(env, render)
+    layout = DatasetLayout(render.cameras, render.height, render.width)
+    # Static K/E go into the feature info only when one task (one scene) fills the dataset: shards of
+    # different scenes would disagree and LeRobot's merge requires identical features.
+    static = rig.static_calibration() if len(cfg.task_names()) == 1 else None
+    common = {
+        "layout": layout,
+        "provenance": {**_provenance(cfg, [spec.task]), "static_calibration": _static_json(rig)},
+        "static_calibration": static,
+    }
+    with contextlib.ExitStack() as stack:
+        writers: dict[str, SigmaWriter] = {}
+        if cfg.dense:
+            writers["dense"] = stack.enter_context(
+                DenseWriter(
+                    shard_dir / "dense",
+                    use_videos=cfg.dense_video,
+                    repo_id=f"{cfg.repo_id}_dense",
+                    **common,
                 )
-            if cfg.keyframe:
-                writers["keyframe"] = stack.enter_context(
-                    KeyframeWriter(
-                        shard_dir / "keyframe",
-                        use_videos=cfg.keyframe_video,
-                        augment_every=cfg.augment_every,
-                        repo_id=f"{cfg.repo_id}_keyframe",
-                        **common,
-                    )
+            )
+        if cfg.keyframe:
+            writers["keyframe"] = stack.enter_context(
+                KeyframeWriter(
+                    shard_dir / "keyframe",
+                    use_videos=cfg.keyframe_video,
+                    augment_every=cfg.augment_every,
+                    repo_id=f"{cfg.repo_id}_keyframe",
+                    **common,
                 )
-            for seed in spec.seeds:
-                t0 = time.perf_counter()
-                reset_env(env, task, variation, seed)
-                recorder = EpisodeRecorder(env)
-                reason = ""
-                try:
-                    task.expert(recorder, variation, np.random.default_rng(seed))
-                    if not task.success(env, variation):
-                        reason = "success check failed at the end of the expert"
-                except ExpertFailure as exc:
-                    reason = f"expert failure: {exc}"
-                result.record_s += time.perf_counter() - t0
-                if reason or recorder.num_steps == 0:
-                    result.dropped.append(
-                        {"seed": seed, "steps": recorder.num_steps, "reason": reason or "no steps"}
-                    )
-                    if on_episode:
-                        on_episode()
-                    continue
-                ep = recorder.to_episode(
-                    spec.task, spec.variation, variation.instruction, seed, provenance={"expert": spec.task}
+            )
+        for seed in spec.seeds:
+            t0 = time.perf_counter()
+            reset_env(env, task, variation, seed)
+            recorder = EpisodeRecorder(env)
+            reason = ""
+            try:
+                task.expert(recorder, variation, np.random.default_rng(seed))
+                if not task.success(env, variation):
+                    reason = "success check failed at the end of the expert"
+            except ExpertFailure as exc:
+                reason = f"expert failure: {exc}"
+            result.record_s += time.perf_counter() - t0
+            if reason or recorder.num_steps == 0:
+                result.dropped.append(
+                    {"seed": seed, "steps": recorder.num_steps, "reason": reason or "no steps"}
                 )
-                heuristic, stats = _heuristic_vs_expert(ep)
-                ep.provenance["heuristic_keyframes"] = heuristic
-                for k, v in stats.items():
-                    result.heuristic[k] = result.heuristic.get(k, 0.0) + v
-
-                needed = [set(w.frame_indices(ep)) for w in writers.values()]
-                shared = set.intersection(*needed) if len(needed) > 1 else set()
-                frames = RenderedFrames(ep, rig, keep=shared)
-                t1 = time.perf_counter()
-                for kind, writer in writers.items():
-                    result.episodes[kind] = result.episodes.get(kind, 0) + writer.add_episode(ep, frames)
-                result.write_s += time.perf_counter() - t1 - frames.seconds
-                result.render_s += frames.seconds
-                result.rendered_frames += frames.count
-                result.kept += 1
-                result.keyframes += len(ep.keyframes)
-                result.steps += len(ep) - 1
                 if on_episode:
                     on_episode()
-            t2 = time.perf_counter()
-        result.write_s += time.perf_counter() - t2  # finalize (flushes encoders, closes parquet)
-        for kind, writer in writers.items():
-            result.frames[kind] = writer.num_frames
-    finally:
-        env.close()
+                continue
+            ep = recorder.to_episode(
+                spec.task, spec.variation, variation.instruction, seed, provenance={"expert": spec.task}
+            )
+            heuristic, stats = _heuristic_vs_expert(ep)
+            ep.provenance["heuristic_keyframes"] = heuristic
+            for k, v in stats.items():
+                result.heuristic[k] = result.heuristic.get(k, 0.0) + v
+
+            needed = [set(w.frame_indices(ep)) for w in writers.values()]
+            shared = set.intersection(*needed) if len(needed) > 1 else set()
+            frames = RenderedFrames(ep, rig, keep=shared)
+            t1 = time.perf_counter()
+            for kind, writer in writers.items():
+                result.episodes[kind] = result.episodes.get(kind, 0) + writer.add_episode(ep, frames)
+            result.write_s += time.perf_counter() - t1 - frames.seconds
+            result.render_s += frames.seconds
+            result.rendered_frames += frames.count
+            result.kept += 1
+            result.keyframes += len(ep.keyframes)
+            result.steps += len(ep) - 1
+            if on_episode:
+                on_episode()
+        t2 = time.perf_counter()
+    result.write_s += time.perf_counter() - t2  # finalize (flushes encoders, closes parquet)
+    for kind, writer in writers.items():
+        result.frames[kind] = writer.num_frames
     if result.kept == 0:  # an empty LeRobot dataset cannot be read or merged
         for kind in DATASETS:
             shutil.rmtree(shard_dir / kind, ignore_errors=True)
@@ -478,62 +512,89 @@ def _worker(spec: ShardSpec, cfg: CollectConfig, shard_dir: Path, progress: Any)
 def _run_processes(
     todo: list[ShardSpec], cfg: CollectConfig, shards_dir: Path, pbar: Any
 ) -> list[ShardResult]:
-    if cfg.workers == 1 or len(todo) <= 1:
-        return [collect_shard(s, cfg, shards_dir / s.name, on_episode=lambda: pbar.update(1)) for s in todo]
+    """Collect ``todo`` with ``cfg.workers`` processes: this one and ``workers - 1`` spawned helpers.
+
+    Shards are handed out one at a time: each helper gets the next one from the front of the queue when it is
+    free (a feeder thread per helper), while this process, whose imports are done, starts at once and takes
+    shards from the back. A shard that raises stops the hand-out and the error is re-raised; finished shards
+    stay for a rerun.
+    """
+    tasks = list(dict.fromkeys(s.task for s in todo))
+    helpers = min(cfg.workers, len(todo)) - 1
+
+    def run_here(spec: ShardSpec, after_episode: Callable[[], None]) -> ShardResult:
+        return collect_shard(spec, cfg, shards_dir / spec.name, on_episode=after_episode)
+
+    if helpers <= 0:
+        check_cameras_exist(cfg, tasks, reuse=True)  # this process's envs, built once per task
+        return [run_here(s, lambda: pbar.update(1)) for s in todo]
+
+    pending = deque(todo)
+    lock = threading.Lock()
+    results: dict[str, ShardResult] = {}
+    errors: list[BaseException] = []
     ctx = mp.get_context("spawn")  # fresh processes: no inherited GL contexts or MuJoCo state
-    with ctx.Manager() as manager, ProcessPoolExecutor(max_workers=cfg.workers, mp_context=ctx) as pool:
+    with ctx.Manager() as manager, ProcessPoolExecutor(max_workers=helpers, mp_context=ctx) as pool:
         progress = manager.Queue()
-        futures = [pool.submit(_worker, s, cfg, shards_dir / s.name, progress) for s in todo]
-        while not all(f.done() for f in futures):
+
+        def feed() -> None:  # keeps one helper busy until the queue is empty or a shard failed
+            while True:
+                with lock:
+                    if errors or not pending:
+                        return
+                    spec = pending.popleft()
+                try:
+                    results[spec.name] = pool.submit(
+                        _worker, spec, cfg, shards_dir / spec.name, progress
+                    ).result()
+                except BaseException as exc:
+                    with lock:
+                        errors.append(exc)
+                    return
+
+        def tick() -> None:  # progress of every process; stop on a helper's error
+            pbar.update(1)
             with contextlib.suppress(queue.Empty):
-                progress.get(timeout=0.2)
-                pbar.update(1)
-        while not progress.empty():
-            pbar.update(progress.get())
-        return [f.result() for f in futures]
+                while True:
+                    pbar.update(progress.get_nowait())
+            if errors:
+                raise errors[0]
+
+        feeders = [threading.Thread(target=feed, daemon=True) for _ in range(helpers)]
+        for t in feeders:
+            t.start()
+        try:
+            check_cameras_exist(cfg, tasks, reuse=True)  # while the helpers start (seconds of imports)
+            while True:
+                with lock:
+                    if errors or not pending:
+                        break
+                    spec = pending.pop()
+                results[spec.name] = run_here(spec, tick)
+            while any(t.is_alive() for t in feeders):
+                with contextlib.suppress(queue.Empty):
+                    pbar.update(progress.get(timeout=0.2))
+            if errors:
+                raise errors[0]
+        except BaseException:
+            with lock:
+                pending.clear()  # helpers finish their current shard and stop
+            raise
+        with contextlib.suppress(queue.Empty):
+            while True:
+                pbar.update(progress.get_nowait())
+    return [results[s.name] for s in todo]
 
 
-def _run_datatrove(todo: list[ShardSpec], cfg: CollectConfig, shards_dir: Path) -> list[ShardResult]:
+def _run_datatrove(todo: list[ShardSpec], cfg: CollectConfig) -> list[ShardResult]:
     try:
-        from datatrove.executor import LocalPipelineExecutor
-        from datatrove.pipeline.base import PipelineStep
+        from sigma_data.cluster import run_local
     except ImportError as exc:
         raise ImportError(
-            "executor='datatrove' needs the optional dependency datatrove (pip install 'datatrove>=0.4,<1')"
+            "executor='datatrove' needs the optional dependency datatrove: pip install -e '.[cluster]' "
+            f"(or 'datatrove>=0.4,<1'); {exc}"
         ) from exc
-
-    class CollectShards(PipelineStep):
-        """DataTrove step: task ``rank`` of ``world_size`` collects shards rank, rank + world_size, ..."""
-
-        name = "sigma-data collect"
-        type = "robosuite"
-
-        def __init__(self, shards: list[ShardSpec], config: CollectConfig, root: Path):
-            super().__init__()
-            self.shards, self.config, self.root = shards, config, root
-
-        def run(self, data: Any = None, rank: int = 0, world_size: int = 1) -> Any:
-            import sigma_data  # noqa: F401
-
-            for spec in self.shards[rank::world_size]:
-                collect_shard(spec, self.config, self.root / spec.name)
-            return data
-
-    tasks = len(todo)
-    LocalPipelineExecutor(
-        pipeline=[CollectShards(todo, cfg, shards_dir)],
-        tasks=tasks,
-        workers=cfg.workers,
-        logging_dir=str(shards_dir.parent / "datatrove_logs"),
-        skip_completed=False,  # shard markers decide what is done
-    ).run()
-    results = [finished_shard(shards_dir / s.name, cfg) for s in todo]
-    missing = [s.name for s, r in zip(todo, results, strict=True) if r is None]
-    if missing:
-        raise RuntimeError(f"datatrove run left shards unfinished: {missing}")
-    for r in results:
-        r.skipped = False
-    return results
+    return run_local(todo, cfg)
 
 
 @contextlib.contextmanager
@@ -566,20 +627,23 @@ def merge_shards(kind: str, shard_roots: list[Path], out: Path, repo_id: str) ->
     """Merge shard datasets of one kind with LeRobot's ``aggregate_datasets`` and merge their sidecars."""
     from datasets import disable_progress_bars
     from lerobot.datasets.aggregate import aggregate_datasets
-    from lerobot.datasets.dataset_metadata import LeRobotDatasetMetadata
+    from lerobot.datasets.io_utils import load_info
 
     disable_progress_bars()  # LeRobot's own "Copy data and videos" bar stays; the per-file "Map" bars go
     if out.exists():
         shutil.rmtree(out)
-    features = LeRobotDatasetMetadata(repo_id, root=shard_roots[0]).features
-    with _typed_parquet_writes(features):
-        aggregate_datasets(
-            repo_ids=[repo_id] * len(shard_roots),
-            aggr_repo_id=repo_id,
-            roots=shard_roots,
-            aggr_root=out,
-            concatenate_data=False,  # one data file per shard: LeRobot's append path re-reads without types
-        )
+    if len(shard_roots) == 1:  # already the merged dataset: LeRobot's merge would rewrite the same files
+        shutil.copytree(shard_roots[0], out)
+    else:
+        features = load_info(shard_roots[0]).features  # shapes as tuples, as LeRobot's metadata gives them
+        with _typed_parquet_writes(features):
+            aggregate_datasets(
+                repo_ids=[repo_id] * len(shard_roots),
+                aggr_repo_id=repo_id,
+                roots=shard_roots,
+                aggr_root=out,
+                concatenate_data=False,  # one data file per shard: LeRobot's append path re-reads untyped
+            )
     sidecars = [json.loads((r / SIDECAR).read_text()) for r in shard_roots]
     merged = {k: v for k, v in sidecars[0].items() if k not in ("episodes", "num_episodes", "num_frames")}
     merged["env_kwargs"], merged["bounds"], merged["env_name"], merged["static_calibration"] = {}, {}, {}, {}
@@ -604,10 +668,8 @@ def collect(cfg: CollectConfig) -> CollectSummary:
 
     start = time.perf_counter()
     shards = plan_shards(cfg)
-    check_cameras_exist(cfg, shards)
     out = Path(cfg.output_dir)
     shards_dir = out / "shards"
-    shards_dir.mkdir(parents=True, exist_ok=True)
 
     done: dict[str, ShardResult] = {}
     for spec in shards:
@@ -616,14 +678,18 @@ def collect(cfg: CollectConfig) -> CollectSummary:
             done[spec.name] = prev
     todo = [s for s in shards if s.name not in done]
     total = sum(len(s.seeds) for s in todo)
-    with tqdm(total=total, desc="episodes", unit="ep", disable=not cfg.progress) as pbar:
-        if cfg.executor == "datatrove":
-            results = _run_datatrove(todo, cfg, shards_dir) if todo else []
-            pbar.update(total)
-        elif cfg.executor == "processes":
-            results = _run_processes(todo, cfg, shards_dir, pbar)
-        else:
-            raise ValueError(f"unknown executor '{cfg.executor}' (processes | datatrove)")
+    try:
+        if todo and cfg.executor == "datatrove":
+            check_cameras_exist(cfg, list(dict.fromkeys(s.task for s in todo)), reuse=False)
+        shards_dir.mkdir(parents=True, exist_ok=True)
+        with tqdm(total=total, desc="episodes", unit="ep", disable=not cfg.progress) as pbar:
+            if cfg.executor == "datatrove":
+                results = _run_datatrove(todo, cfg) if todo else []
+                pbar.update(total)
+            else:
+                results = _run_processes(todo, cfg, shards_dir, pbar) if todo else []
+    finally:
+        close_envs()
     for r in results:
         done[r.name] = r
     ordered = [done[s.name] for s in shards]

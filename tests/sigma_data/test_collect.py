@@ -9,6 +9,7 @@ import numpy as np
 import pytest
 from lerobot.datasets.lerobot_dataset import LeRobotDataset
 
+from sigma_data import collect as collect_module
 from sigma_data.cli import main as cli_main
 from sigma_data.collect import MARKER, CollectConfig, collect
 from sigma_data.tasks import get_task
@@ -96,6 +97,34 @@ def test_rerun_skips_finished_shards_and_resumes_an_interrupted_one(first_run, t
     last = len(ka) - 1
     for key in ("observation.images.agentview", "observation.images.robot0_eye_in_hand_depth"):
         np.testing.assert_array_equal(ka[last][key].numpy(), kb[last][key].numpy())
+
+
+def test_two_workers_share_the_shards_and_give_the_same_data(first_run, tmp_path):
+    """workers=2: this process and one spawned helper each collect a shard; the data equal the 1-worker run."""
+    out, summary = first_run
+    two = collect(replace(tiny(tmp_path / "two"), workers=2))
+    assert two.kept == 2 and [s.name for s in two.shards] == [s.name for s in summary.shards]
+    names = ["observation.state", "action", "sigma.source_frame"]
+    _, a = columns(out / "keyframe", names)
+    _, b = columns(tmp_path / "two" / "keyframe", names)
+    for name in names:
+        np.testing.assert_array_equal(a[name], b[name], err_msg=name)
+    with pytest.raises(ValueError, match=r"unknown camera\(s\) \['nocam'\]"):
+        collect(replace(tiny(tmp_path / "bad"), workers=2, cameras="agentview,nocam"))
+
+
+def test_single_shard_is_copied_and_reads_back(tmp_path):
+    """One shard is the merged dataset already (copied, not re-aggregated); the process's envs are closed after."""
+    summary = collect(replace(tiny(tmp_path), episodes=1, dense=False))
+    assert len(summary.shards) == 1 and summary.kept == 1 and set(summary.outputs) == {"keyframe"}
+    ds, cols = columns(tmp_path / "keyframe", ["episode_index", "action"])
+    assert ds.meta.total_episodes == 1 and len(ds) == summary.frames("keyframe") == len(cols["action"])
+    assert ds[0]["observation.images.agentview"].shape == (3, 32, 32)
+    report = validate_dataset(ValidateConfig(root=tmp_path / "keyframe", frames_per_episode=2))
+    assert report.num_errors == 0, report.table()
+    side = read_sidecar(tmp_path / "keyframe")
+    assert side["num_episodes"] == 1 and side["episodes"][0]["shard"] == summary.shards[0].name
+    assert not collect_module._ENVS
 
 
 def test_bad_names_give_clear_errors(tmp_path):

@@ -1,0 +1,76 @@
+"""Collection shards as a DataTrove pipeline step, for clusters (optional extra ``cluster``: ``datatrove``).
+
+:class:`CollectShards` runs :func:`sigma_data.collect.collect_shard` for the shards of a collection under any
+DataTrove executor: task ``rank`` of ``world_size`` takes shards ``rank, rank + world_size, ...``. ``sigma-data
+collect --executor=datatrove`` runs it with ``LocalPipelineExecutor`` on this machine; on a Slurm cluster, run
+it with ``SlurmPipelineExecutor`` (one job array task per shard) and then ``sigma-data collect`` with the same
+options, which reuses every finished shard and only merges (``docs/cluster.md``). Shard markers, not DataTrove's
+completion files, decide what is done, so reruns and mixed executors agree.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any
+
+from datatrove.executor import LocalPipelineExecutor
+from datatrove.pipeline.base import PipelineStep
+
+from sigma_data.collect import (
+    CollectConfig,
+    ShardResult,
+    ShardSpec,
+    collect_shard,
+    finished_shard,
+    plan_shards,
+)
+
+
+class CollectShards(PipelineStep):
+    """DataTrove step collecting ``shards`` (default: every shard of ``config`` not finished yet) under
+    ``<config.output_dir>/shards``."""
+
+    name = "sigma-data collect"
+    type = "robosuite"
+
+    def __init__(self, config: CollectConfig, shards: list[ShardSpec] | None = None):
+        super().__init__()
+        self.config = config
+        self.root = Path(config.output_dir) / "shards"
+        if shards is None:
+            shards = [s for s in plan_shards(config) if finished_shard(self.root / s.name, config) is None]
+        self.shards = list(shards)
+
+    def run(self, data: Any = None, rank: int = 0, world_size: int = 1) -> Any:
+        import sigma_data  # noqa: F401  (headless GL before robosuite in a fresh process)
+        from sigma_data.collect import close_envs
+
+        try:
+            for spec in self.shards[rank::world_size]:
+                collect_shard(spec, self.config, self.root / spec.name)
+                self.stat_update("shards")
+        finally:
+            close_envs()
+        return data
+
+
+def run_local(shards: list[ShardSpec], config: CollectConfig) -> list[ShardResult]:
+    """Collect ``shards`` with DataTrove's ``LocalPipelineExecutor`` (``config.workers`` processes); raises if one
+    is left unfinished."""
+    root = Path(config.output_dir) / "shards"
+    LocalPipelineExecutor(
+        pipeline=[CollectShards(config, shards)],
+        tasks=len(shards),
+        workers=config.workers,
+        logging_dir=str(Path(config.output_dir) / "datatrove_logs"),
+        skip_completed=False,  # shard markers decide what is done
+    ).run()
+    results = [finished_shard(root / s.name, config) for s in shards]
+    missing = [s.name for s, r in zip(shards, results, strict=True) if r is None]
+    if missing:
+        raise RuntimeError(
+            f"datatrove run left shards unfinished: {missing} (logs in {config.output_dir}/datatrove_logs)"
+        )
+    for r in results:
+        r.skipped = False
+    return results
