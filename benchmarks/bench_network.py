@@ -87,12 +87,17 @@ def main() -> None:
     ap.add_argument("--steps", type=int, default=20)
     ap.add_argument("--no-bf16", action="store_true")
     ap.add_argument("--compile", action="store_true")
+    ap.add_argument("--channels-last", action="store_true", help="NHWC conv activations and weights")
+    ap.add_argument("--lamb-loop", action="store_true", help="per-parameter LAMB update instead of foreach")
+    ap.add_argument("--profile", action="store_true", help="print the top kernels of two profiled steps")
     args = ap.parse_args()
     dev, b = args.device, args.batch_size
-    cfg = NetworkConfig(**(PAPER if args.config == "paper" else SMALL))
+    cfg = NetworkConfig(**(PAPER if args.config == "paper" else SMALL), channels_last=args.channels_last)
     net = SigmaNetwork(cfg, 384, 384).to(dev)
+    if args.channels_last:
+        net = net.to(memory_format=torch.channels_last)
     renderer = VirtualViewRenderer(cfg.img_size).to(dev)
-    opt = Lamb(net.parameters(), lr=1e-4, weight_decay=1e-6)
+    opt = Lamb(net.parameters(), lr=1e-4, weight_decay=1e-6, foreach=not args.lamb_loop)
     torch.backends.cuda.matmul.allow_tf32 = torch.backends.cudnn.allow_tf32 = True
     torch.backends.cudnn.benchmark = True
     gpu = dev.startswith("cuda")
@@ -136,6 +141,16 @@ def main() -> None:
         step()
     sync()
     train_sps = args.steps * b / (time.perf_counter() - t)
+    if args.profile:
+        from torch.profiler import ProfilerActivity, profile
+
+        acts = [ProfilerActivity.CPU] + ([ProfilerActivity.CUDA] if gpu else [])
+        with profile(activities=acts) as prof:
+            for _ in range(2):
+                step()
+            sync()
+        key = "self_cuda_time_total" if gpu else "self_cpu_time_total"
+        print(prof.key_averages().table(sort_by=key, row_limit=30, max_name_column_width=60))
 
     net.eval()
     times = []
@@ -160,6 +175,9 @@ def main() -> None:
         "batch": b,
         "points": args.points,
         "bf16": gpu and not args.no_bf16,
+        "compile": args.compile,
+        "channels_last": args.channels_last,
+        "lamb": "loop" if args.lamb_loop else "foreach",
         "train_samples_per_s": round(train_sps, 1),
         "action_ms": round(1000 * times[len(times) // 2], 2),
     }

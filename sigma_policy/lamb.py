@@ -33,6 +33,7 @@ class Lamb(torch.optim.Optimizer):
         betas: tuple[float, float] = (0.9, 0.999),
         eps: float = 1e-6,
         weight_decay: float = 0.0,
+        foreach: bool = True,
     ):
         if lr < 0.0:
             raise ValueError(f"Lamb: invalid learning rate {lr}")
@@ -41,6 +42,7 @@ class Lamb(torch.optim.Optimizer):
         if eps <= 0.0 or weight_decay < 0.0:
             raise ValueError(f"Lamb: invalid eps {eps} or weight_decay {weight_decay}")
         super().__init__(params, {"lr": lr, "betas": tuple(betas), "eps": eps, "weight_decay": weight_decay})
+        self.foreach = foreach
 
     @torch.no_grad()
     def step(self, closure: Callable[[], float] | None = None) -> float | None:
@@ -49,12 +51,9 @@ class Lamb(torch.optim.Optimizer):
             with torch.enable_grad():
                 loss = closure()
         for group in self.param_groups:
-            beta1, beta2 = group["betas"]
-            for p in group["params"]:
-                if p.grad is None:
-                    continue
-                grad = p.grad
-                if grad.is_sparse:
+            params = [p for p in group["params"] if p.grad is not None]
+            for p in params:
+                if p.grad.is_sparse:
                     raise RuntimeError("Lamb does not support sparse gradients")
                 state = self.state[p]
                 if not state:
@@ -62,23 +61,44 @@ class Lamb(torch.optim.Optimizer):
                     state["exp_avg"] = torch.zeros_like(p, memory_format=torch.preserve_format)
                     state["exp_avg_sq"] = torch.zeros_like(p, memory_format=torch.preserve_format)
                 state["step"] += 1
-                exp_avg, exp_avg_sq = state["exp_avg"], state["exp_avg_sq"]
-                exp_avg.mul_(beta1).add_(grad, alpha=1 - beta1)
-                exp_avg_sq.mul_(beta2).addcmul_(grad, grad, value=1 - beta2)
-
-                update = exp_avg / exp_avg_sq.sqrt().add_(group["eps"])
-                if group["weight_decay"] != 0:
-                    update.add_(p, alpha=group["weight_decay"])
-
-                weight_norm = p.norm().clamp(0, TRUST_CLAMP)
-                update_norm = update.norm()
-                trust = torch.where(
-                    (weight_norm > 0) & (update_norm > 0),
-                    weight_norm / update_norm,
-                    torch.ones_like(weight_norm),
-                )
-                p.add_(update * trust, alpha=-group["lr"])
+            if not params:
+                continue
+            if self.foreach:
+                # One kernel per operation for all parameters of a device and dtype, instead of ~14 per parameter:
+                # the step of the 38 M-parameter paper network is launch-bound otherwise.
+                groups: dict[tuple[torch.device, torch.dtype], list[torch.Tensor]] = {}
+                for p in params:
+                    groups.setdefault((p.device, p.dtype), []).append(p)
+                for same in groups.values():
+                    self._update_foreach(same, group)
+            else:
+                for p in params:
+                    self._update_foreach([p], group)
         return loss
+
+    def _update_foreach(self, params: list[torch.Tensor], group: dict) -> None:
+        beta1, beta2 = group["betas"]
+        grads = [p.grad for p in params]
+        exp_avg = [self.state[p]["exp_avg"] for p in params]
+        exp_avg_sq = [self.state[p]["exp_avg_sq"] for p in params]
+        torch._foreach_mul_(exp_avg, beta1)
+        torch._foreach_add_(exp_avg, grads, alpha=1 - beta1)
+        torch._foreach_mul_(exp_avg_sq, beta2)
+        torch._foreach_addcmul_(exp_avg_sq, grads, grads, value=1 - beta2)
+
+        denom = torch._foreach_sqrt(exp_avg_sq)
+        torch._foreach_add_(denom, group["eps"])
+        update = torch._foreach_div(exp_avg, denom)
+        if group["weight_decay"] != 0:
+            torch._foreach_add_(update, params, alpha=group["weight_decay"])
+
+        weight_norm = torch.stack(torch._foreach_norm(params)).clamp(0, TRUST_CLAMP)
+        update_norm = torch.stack(torch._foreach_norm(update))
+        trust = torch.where(
+            (weight_norm > 0) & (update_norm > 0), weight_norm / update_norm, torch.ones_like(weight_norm)
+        )
+        for p, u, scale in zip(params, update, (trust * -group["lr"]).unbind(), strict=True):
+            p.addcmul_(u, scale.to(p.dtype))  # one launch per parameter, no host sync
 
 
 @OptimizerConfig.register_subclass("lamb")

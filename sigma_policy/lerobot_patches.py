@@ -1,4 +1,4 @@
-"""A result-identical speed fix for LeRobot 0.6.1's multi-frame reads, installed when sigma is imported.
+"""Result-identical speed fixes for LeRobot 0.6.1's multi-frame reads, installed when sigma is imported.
 
 With ``delta_timestamps`` (sigma reads the current frame and its goal: ``observation_delta_indices=[0, 1]``),
 ``DatasetReader._query_hf_dataset`` fetches every key separately with ``hf_dataset[key][rows]``. Under LeRobot's
@@ -6,9 +6,18 @@ row transform each such call decodes *all* columns of those rows, so a keyframe 
 (8 image columns, 8 calibration columns) decodes ~270 images per sample instead of 16: 216 ms instead of 13 ms
 per sample, measured on this project's demo dataset, which made ``lerobot-train`` data-bound on a CPU.
 
-The replacement groups keys that ask for the same rows and decodes those rows once. Its output is the same
-dictionary of stacked tensors (``tests/sigma_policy/test_lerobot_patches.py`` compares it with the original on a
-real dataset); on any unexpected input it defers to the original method.
+1. The grouped query groups keys that ask for the same rows and decodes those rows once.
+2. ``DatasetReader.get_item`` first decodes the whole current row and then overwrites every queried key with the
+   query's result: the current row is read without those columns instead (1.5x fewer decodes again).
+
+Both return the same dictionary of tensors (``tests/sigma_policy/test_lerobot_patches.py`` compares them with the
+originals on a real dataset); on any unexpected input they defer to the original methods.
+
+LeRobot's ``lerobot-train`` starts its DataLoader workers with ``spawn``: they re-import modules instead of
+inheriting the patched class, so a class patch made in the main process alone would not reach the workers that
+do the reading (measured on an H100 machine with 14 workers: 7-12 samples/s, data-bound 10x). Every
+``DatasetReader`` made after the install therefore carries a small marker whose unpickling -- which happens in
+each worker when it receives the dataset -- installs the patch there too.
 
 A log filter shortens one LeRobot warning: on machines without FFmpeg's shared libraries (sigma's set-up does not
 need them: PyAV ships its own), LeRobot logs torchcodec's loading tracebacks for every FFmpeg version at every
@@ -51,6 +60,41 @@ def _grouped_query_hf_dataset(self, query_indices: dict[str, list[int]]) -> dict
         return original(self, query_indices)
 
 
+class _ReaderWithLightRows:
+    """``reader`` as seen by LeRobot's ``get_item``, except that its ``hf_dataset`` is ``light``: the same rows
+    without the columns the multi-frame query replaces anyway. Methods stay bound to the real reader."""
+
+    def __init__(self, reader, light) -> None:
+        self._reader, self.hf_dataset = reader, light
+
+    def __getattr__(self, name: str):
+        return getattr(self._reader, name)
+
+
+def _light_rows(reader):
+    """``reader.hf_dataset`` without the ``delta_indices`` columns (cached per loaded dataset)."""
+    full = reader.hf_dataset
+    cached = reader.__dict__.get("_sigma_light_rows")
+    if cached is None or cached[0] is not full:
+        keep = [c for c in full.column_names if c not in reader.delta_indices]
+        cached = (full, full.select_columns(keep))
+        reader.__dict__["_sigma_light_rows"] = cached
+    return cached[1]
+
+
+def _get_item_without_double_decode(self, idx) -> dict:
+    """LeRobot's ``get_item`` first decodes the whole current row, then replaces every ``delta_indices`` key by
+    the multi-frame query: with sigma's keyframe datasets that first decode (8 images of 16) is thrown away.
+    Here the current row is read without those columns; the rest of ``get_item`` runs unchanged."""
+    original = _get_item_without_double_decode.original
+    if not self.delta_indices or self.hf_dataset is None:
+        return original(self, idx)
+    try:
+        return original(_ReaderWithLightRows(self, _light_rows(self)), idx)
+    except (KeyError, TypeError, IndexError, AttributeError, ValueError):
+        return original(self, idx)
+
+
 class _ShortTorchcodecWarning(logging.Filter):
     """Rewrites LeRobot's "torchcodec cannot be loaded" warning (with its tracebacks) to one line."""
 
@@ -63,6 +107,23 @@ class _ShortTorchcodecWarning(logging.Filter):
             )
             record.args = ()
         return True
+
+
+def _install_in_this_process() -> _InstallOnUnpickle:
+    install()
+    return _InstallOnUnpickle()
+
+
+class _InstallOnUnpickle:
+    """Pickled with every ``DatasetReader``; unpickling it (in a spawned DataLoader worker) installs the patch."""
+
+    def __reduce__(self):
+        return (_install_in_this_process, ())
+
+
+def _init_with_marker(self, *args, **kwargs) -> None:
+    _init_with_marker.original(self, *args, **kwargs)
+    self._sigma_lerobot_patches = _InstallOnUnpickle()
 
 
 def install() -> bool:
@@ -80,6 +141,11 @@ def install() -> bool:
         return False
     _grouped_query_hf_dataset.original = DatasetReader._query_hf_dataset
     DatasetReader._query_hf_dataset = _grouped_query_hf_dataset
+    _get_item_without_double_decode.original = DatasetReader.get_item
+    DatasetReader.get_item = _get_item_without_double_decode
+    _init_with_marker.original = DatasetReader.__init__
+    _init_with_marker.__doc__ = DatasetReader.__init__.__doc__
+    DatasetReader.__init__ = _init_with_marker
     logging.getLogger("lerobot.utils.import_utils").addFilter(_ShortTorchcodecWarning())
     _INSTALLED = True
     return True

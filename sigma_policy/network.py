@@ -65,6 +65,7 @@ class NetworkConfig:
     use_proprio: bool = False
     proprio_dim: int = 3
     logit_scale_init: float = math.log(1 / 0.07)
+    channels_last: bool = False  # NHWC conv activations: the layout tensor-core convolutions want on GPUs
 
     def __post_init__(self) -> None:
         if self.img_size % self.patch_size:
@@ -91,13 +92,25 @@ def _init_for_activation(module: nn.Conv2d | nn.Linear, activation: bool) -> Non
 
 
 class ConvBlock(nn.Sequential):
-    """Conv2d (replicate padding, ``k // 2``) + optional GroupNorm(4) + optional LeakyReLU(0.02)."""
+    """Conv2d (replicate padding, ``k // 2``) + optional GroupNorm(4) + optional LeakyReLU(0.02).
+
+    ``pre_padded``: the input already carries its replicate border (see :class:`BilinearUpsample`), so the conv
+    pads nothing. A 1x1 conv pads nothing either (replicate padding by 0 would still copy the input).
+    """
 
     def __init__(
-        self, c_in: int, c_out: int, kernel: int, stride: int = 1, norm: bool = False, act: bool = True
+        self,
+        c_in: int,
+        c_out: int,
+        kernel: int,
+        stride: int = 1,
+        norm: bool = False,
+        act: bool = True,
+        pre_padded: bool = False,
     ):
-        conv = nn.Conv2d(c_in, c_out, kernel, stride, padding=0 if stride > 1 else kernel // 2)
-        if stride == 1:
+        pad = 0 if stride > 1 or pre_padded else kernel // 2
+        conv = nn.Conv2d(c_in, c_out, kernel, stride, padding=pad)
+        if pad:
             conv.padding_mode = "replicate"
         _init_for_activation(conv, act)
         layers: list[nn.Module] = [conv]
@@ -106,6 +119,44 @@ class ConvBlock(nn.Sequential):
         if act:
             layers.append(nn.LeakyReLU(LRELU_SLOPE))
         super().__init__(*layers)
+
+
+def bilinear_upsample_matrix(size_in: int, scale: int, pad: int = 0) -> Tensor:
+    """``(size_in * scale + 2 pad, size_in)`` float64 matrix ``A`` with ``A @ x`` = bilinear upsampling of ``x``
+    along one axis by ``scale`` (``align_corners=False``, PyTorch's sampling), then replicate padding by ``pad``.
+
+    Output index ``i`` samples source ``max((i + 1/2) / scale - 1/2, 0)``, blended between its floor and the next
+    pixel (clamped to the last). The replicate border comes out of the same rule: for scale >= 1 the outermost
+    upsampled pixels already equal the outermost source pixels, and so do the border indices ``-pad .. -1`` and
+    ``size_in * scale .. + pad - 1``.
+    """
+    if size_in < 1 or scale < 1 or pad < 0:
+        raise ValueError(f"need size_in >= 1, scale >= 1, pad >= 0; got {size_in}, {scale}, {pad}")
+    dst = torch.arange(-pad, size_in * scale + pad, dtype=torch.float64)
+    src = ((dst + 0.5) / scale - 0.5).clamp_min(0)
+    lo = src.floor().long().clamp_max(size_in - 1)
+    hi = (lo + 1).clamp_max(size_in - 1)
+    w_hi = (src - lo).clamp(0, 1)
+    a = torch.zeros(len(dst), size_in, dtype=torch.float64)
+    rows = torch.arange(len(dst))
+    a.index_put_((rows, lo), 1 - w_hi, accumulate=True)
+    a.index_put_((rows, hi), w_hi, accumulate=True)
+    return a
+
+
+class BilinearUpsample(nn.Module):
+    """Bilinear x ``scale`` (``align_corners=False``) followed by replicate padding by ``pad``, as two small
+    matrix products ``A x A^T``. Same values as ``F.pad(F.interpolate(x, scale_factor=scale, mode="bilinear"),
+    (pad,) * 4, mode="replicate")``, but its backward is two matrix products too: PyTorch's upsample and
+    replicate-pad backward kernels scatter with atomics and took a quarter of the paper network's GPU step."""
+
+    def __init__(self, size_in: int, scale: int, pad: int = 0):
+        super().__init__()
+        self.register_buffer("matrix", bilinear_upsample_matrix(size_in, scale, pad), persistent=False)
+
+    def forward(self, x: Tensor) -> Tensor:
+        a = self.matrix.to(x.dtype)  # under autocast, matmul casts both to the autocast dtype anyway
+        return torch.matmul(torch.matmul(a, x), a.t())
 
 
 class DenseBlock(nn.Module):
@@ -244,8 +295,9 @@ class SigmaNetwork(nn.Module):
 
         k = cfg.decoder_kernel
         self.up_conv0 = ConvBlock(c, c, kernel=k)
-        self.upsample = nn.Upsample(scale_factor=cfg.patch_size, mode="bilinear", align_corners=False)
-        self.up_conv1 = ConvBlock(c, c, kernel=k)
+        # Bilinear x patch_size, with up_conv1's replicate border built in (k // 2 pixels).
+        self.upsample = BilinearUpsample(t, cfg.patch_size, pad=k // 2)
+        self.up_conv1 = ConvBlock(c, c, kernel=k, pre_padded=True)
         self.final = ConvBlock(2 * c, cfg.final_dim, kernel=3)
         self.trans_decoder = ConvBlock(cfg.final_dim, 1, kernel=3, act=False)
 
@@ -275,7 +327,10 @@ class SigmaNetwork(nn.Module):
                 f"expected images (B, {self.cfg.num_views}, {self.cfg.in_channels}, {self.cfg.img_size}, "
                 f"{self.cfg.img_size}), got {tuple(images.shape)}"
             )
-        d0 = self.input_preprocess(images.reshape(b * v, ch, h, w))
+        x = images.reshape(b * v, ch, h, w)
+        if self.cfg.channels_last:
+            x = x.contiguous(memory_format=torch.channels_last)
+        d0 = self.input_preprocess(x)
         patches = self.patchify(d0)  # (BV, c, T, T)
         c, t = patches.shape[1], patches.shape[-1]
         tokens = patches.reshape(b, v, c, t * t).transpose(2, 3).reshape(b, v * t * t, c)

@@ -85,14 +85,16 @@ def test_sigma_results_runs_the_loader_benchmark_and_reports_a_failure(tmp_path)
     # A real (tiny) run: the benchmark writes its fragment into tmp_path and RESULTS.md includes it.
     assert main([*common, "--extra_args", '{"loader": "--samples 2"}']) == 0
     fragment = (tmp_path / "loader.md").read_text()
-    assert "--samples 2" in fragment and "| sigma grouped query, current + goal frame |" in fragment
+    assert (
+        "--samples 2" in fragment and "| + current row read without the queried columns (sigma) |" in fragment
+    )
     data = json.loads((tmp_path / "loader.json").read_text())["data"]
-    assert data["lerobot_ms"] > 0 and data["sigma_grouped_ms"] > 0
+    assert data["lerobot_ms"] > 0 and data["sigma_ms"] > 0
     text = out.read_text()
-    assert "| sigma grouped query, current + goal frame |" in text and "Not measured yet" in text
+    assert "| + current row read without the queried columns (sigma) |" in text and "Not measured yet" in text
     # A benchmark that exits non-zero: sigma-results returns 1 and RESULTS.md names the failure and command,
     # keeping the earlier fragment below it.
     assert main([*common, "--extra_args", '{"loader": "--no_such_flag 1"}']) == 1
     text = out.read_text()
     assert "**Failed** in the last `sigma-results` run (exit status 2)" in text and "--no_such_flag" in text
-    assert "The numbers below are from an earlier run." in text and "| sigma grouped query" in text
+    assert "The numbers below are from an earlier run." in text and "| + grouped query" in text

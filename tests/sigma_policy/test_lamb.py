@@ -95,3 +95,21 @@ def test_registered_and_used_by_the_policy_preset():
 def test_rejects_bad_hyperparameters():
     with pytest.raises(ValueError, match="learning rate"):
         Lamb([torch.nn.Parameter(torch.ones(1))], lr=-1.0)
+
+
+def test_foreach_update_equals_the_per_parameter_update():
+    torch.manual_seed(0)
+    model = torch.nn.Sequential(torch.nn.Linear(3, 4), torch.nn.LayerNorm(4), torch.nn.Linear(4, 2))
+    model[2].bias.data.zero_()  # a zero-norm parameter takes trust 1 in both paths
+    twin = torch.nn.Sequential(torch.nn.Linear(3, 4), torch.nn.LayerNorm(4), torch.nn.Linear(4, 2))
+    twin.load_state_dict(model.state_dict())
+    fast = Lamb(model.parameters(), lr=0.05, weight_decay=0.01, foreach=True)
+    slow = Lamb(twin.parameters(), lr=0.05, weight_decay=0.01, foreach=False)
+    for _ in range(3):
+        x = torch.randn(5, 3)
+        for net, opt in ((model, fast), (twin, slow)):
+            net(x).pow(2).sum().backward()
+            opt.step()
+            opt.zero_grad()
+    for a, b in zip(model.parameters(), twin.parameters(), strict=True):
+        torch.testing.assert_close(a, b, rtol=0, atol=0)

@@ -36,6 +36,56 @@ def test_patched_query_matches_lerobot_original(tmp_path):
     item = ds[1]
     assert item["observation.state"].shape[0] == 2
 
+    # The whole item: the patched get_item (current row read without the queried columns) equals LeRobot's.
+    assert DatasetReader.get_item is lerobot_patches._get_item_without_double_decode
+    original_get_item = lerobot_patches._get_item_without_double_decode.original
+    for idx in range(len(ds)):
+        fast, slow = reader.get_item(idx), original_get_item(reader, idx)
+        assert fast.keys() == slow.keys(), idx
+        for key, value in slow.items():
+            if torch.is_tensor(value):
+                assert fast[key].dtype == value.dtype and torch.equal(fast[key], value), (idx, key)
+            else:
+                assert fast[key] == value, (idx, key)
+
+
+def test_a_spawned_worker_gets_the_patch_with_the_dataset(tmp_path):
+    """lerobot-train's DataLoader workers are spawned: a fresh interpreter that only unpickles the dataset must
+    end up with the grouped query (and read the same item)."""
+    import pickle
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    root = write_tiny_keyframe_dataset(tmp_path / "ds")
+    ds = LeRobotDataset("local/tiny", root=root, video_backend="pyav")
+    keys = [k for k in ds.features if k.startswith("observation.")]
+    ds = LeRobotDataset(
+        "local/tiny", root=root, delta_timestamps={k: [0.0, 1 / ds.fps] for k in keys}, video_backend="pyav"
+    )
+    expected = ds[2]
+    (tmp_path / "ds.pkl").write_bytes(pickle.dumps(ds))
+    code = (
+        "import pickle, sys, torch\n"
+        "from lerobot.datasets.dataset_reader import DatasetReader\n"
+        "before = DatasetReader._query_hf_dataset.__name__\n"
+        "ds = pickle.loads(open(sys.argv[1], 'rb').read())\n"
+        "item = ds[2]\n"
+        "torch.save({k: v for k, v in item.items() if torch.is_tensor(v)}, sys.argv[2])\n"
+        "print(before, DatasetReader._query_hf_dataset.__name__)\n"
+    )
+    out = subprocess.run(
+        [sys.executable, "-c", code, str(tmp_path / "ds.pkl"), str(tmp_path / "item.pt")],
+        capture_output=True,
+        text=True,
+        check=True,
+        cwd=Path(__file__).resolve().parents[2],
+    )
+    assert out.stdout.split()[-2:] == ["_query_hf_dataset", "_grouped_query_hf_dataset"], out.stdout
+    item = torch.load(tmp_path / "item.pt")
+    for key, value in item.items():
+        assert torch.equal(value, expected[key]), key
+
 
 def test_torchcodec_warning_is_one_line(caplog):
     import logging

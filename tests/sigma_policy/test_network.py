@@ -6,9 +6,10 @@ import dataclasses
 
 import pytest
 import torch
+import torch.nn.functional as F
 
 from sigma_policy.configuration_sigma import SigmaConfig
-from sigma_policy.network import NetworkConfig, SigmaNetwork
+from sigma_policy.network import BilinearUpsample, NetworkConfig, SigmaNetwork
 
 SMALL = NetworkConfig(
     img_size=32,
@@ -132,3 +133,17 @@ def test_config_presets_and_overrides():
         SigmaConfig(scene_bounds=[0, 0, 0, 1, -1, 1], device="cpu")
     with pytest.raises(ValueError, match="multiple of patch_size"):
         SigmaConfig(preset="small", img_size=60, device="cpu")
+
+
+@pytest.mark.parametrize(("size", "scale", "pad"), [(20, 11, 5), (8, 8, 1), (5, 3, 0), (1, 4, 2)])
+def test_matrix_upsample_equals_interpolate_then_replicate_pad(size: int, scale: int, pad: int):
+    x = torch.randn(2, 3, size, size, dtype=torch.float64, requires_grad=True)
+    ref = F.pad(
+        F.interpolate(x, scale_factor=scale, mode="bilinear", align_corners=False), (pad,) * 4, "replicate"
+    )
+    out = BilinearUpsample(size, scale, pad)(x)
+    torch.testing.assert_close(out, ref, rtol=0, atol=1e-12)
+    g = torch.randn_like(ref)
+    (grad_ref,) = torch.autograd.grad(ref, x, g)
+    (grad_out,) = torch.autograd.grad(out, x, g)
+    torch.testing.assert_close(grad_out, grad_ref, rtol=0, atol=1e-12)
