@@ -127,7 +127,8 @@ def _init_with_marker(self, *args, **kwargs) -> None:
 
 
 def install() -> bool:
-    """Install the grouped query on LeRobot's ``DatasetReader`` (idempotent). Returns whether it is active."""
+    """Install the read fixes on LeRobot's ``DatasetReader`` -- the grouped query, the light current row, and the
+    marker that carries both into spawned workers -- and the log filter (idempotent). Returns whether active."""
     global _INSTALLED
     if _INSTALLED:
         return True
