@@ -38,17 +38,21 @@ Implementation (no Python loop over points or pixels). Each view depends on two 
 image axes and one for its depth, and the 5 views use only 5 distinct image-axis quantities (``(1 +- x) S/2``,
 ``(1 +- y) S/2``, ``(1 - z) S/2``), so per point and quantity the ``T = 2 ceil(r - 1/2) + 1`` candidate pixel
 rows/columns around ``floor(q)`` (3 for r = 1.32) and their squared centre distances are computed once. A point's
-key packs its float32 view depth bits (monotonic for z >= 0) above its flat point index into one int64, and per
-view the ``T x T`` candidates are scattered with ``scatter_reduce_(..., "amin")`` into one flat buffer covering
-the whole batch and all views -- the z-buffer. The radius test ``d_row^2 + d_col^2 < r^2`` is evaluated in float32
-exactly as written, but turned into the scatter address with integer bit operations (the sign bit of
-``d^2 - r^2``): candidates outside the disc, off the image or of invalid points go to a dummy slot on CPU, where
-boolean masks and ``torch.where`` are several times slower than integer arithmetic; on CUDA they are dropped
-with a boolean mask instead (one slot would serialise the atomics). On CPU the work runs one sample at a time
-so the candidate buffers stay in cache and are reused, and the samples of a batch -- disjoint parts of the
-z-buffer -- are shared among ``torch.get_num_threads()`` Python threads (PyTorch kernels release the GIL; each
-thread has its own scratch memory and dummy slot, and intra-op threading is paused meanwhile). The winner's depth and index are then unpacked once and
-its coordinates and features gathered straight into the output.
+key packs its float32 view depth bits (monotonic for z >= 0) above its point index into one int64, and per view
+the ``T x T`` candidates are scattered with ``scatter_reduce_(..., "amin")`` into a flat buffer -- the z-buffer.
+The radius test ``d_row^2 + d_col^2 < r^2`` is evaluated in float32 exactly as written, but turned into the
+scatter address with integer bit operations (the sign bit of ``d^2 - r^2``): candidates outside the disc, off the
+image or of invalid points go to a dummy slot on CPU, where boolean masks and ``torch.where`` are several times
+slower than integer arithmetic (they branch on every element, and the branch is mispredicted half the time); on
+CUDA they are dropped with a boolean mask instead (one slot would serialise the atomics).
+
+CPU specifics (measured on 2 cores; ``python -m benchmarks.bench_renderer``). Each sample has its own z-buffer
+and point indices, and its output channels are gathered right after its scatter from a table of that sample's
+points only, so the working set stays in cache; the samples of a batch are shared among
+``torch.get_num_threads()`` Python threads (PyTorch kernels release the GIL; each thread has its own scratch
+memory; intra-op threading is paused meanwhile). Scratch memory is reused across calls, and so is the output
+tensor once the caller has dropped every reference to it (checked with its storage's use count): a fresh
+multi-megabyte allocation is page-faulted in on first touch, which costs more than the arithmetic of a render.
 """
 
 from __future__ import annotations
@@ -56,6 +60,7 @@ from __future__ import annotations
 import math
 import sys
 import threading
+from collections.abc import Callable
 from concurrent.futures import ThreadPoolExecutor
 
 import torch
@@ -87,7 +92,6 @@ _VIEW_QUANTITIES: tuple[tuple[int, int], ...] = tuple(
 _INF_BITS = 0x7F800000  # float32 +inf as int32 bits: the key's depth part for an empty pixel
 _NEG_ONE_BITS = -0x40800000  # float32 -1.0 as int32 bits (0xBF800000): the depth channel of an empty pixel
 _LOW32 = 0xFFFFFFFF
-_DUMMY_STRIDE = 8  # int64 slots per cache line: the spacing of the CPU jobs' dummy slots
 _SCATTER_MODES = ("auto", "dummy", "spread", "compact")
 _OFF_IMAGE = (
     1e30  # added (times the squared pixel overshoot >= 1) to the squared distance of off-image pixels
@@ -143,6 +147,46 @@ def _workspace(device: torch.device) -> _Workspace:
     name = "ws_inference" if torch.is_inference_mode_enabled() else "ws"
     if not hasattr(_CPU_WORKSPACES, name):
         setattr(_CPU_WORKSPACES, name, _Workspace(reuse=True))
+    return getattr(_CPU_WORKSPACES, name)
+
+
+_STORAGE_USE_COUNT = getattr(torch._C, "_storage_Use_Count", None)  # what torch's CUDA-graph trees use, too
+
+
+class _OutputPool:
+    """CPU output tensors handed out again once nothing outside the pool references their memory.
+
+    The pool keeps a base tensor per output and returns a new tensor on the same storage (not an autograd view),
+    so every tensor or view the caller still holds -- or autograd saved for backward -- counts in the storage's use
+    count; a base is reused only when the pool's own reference is the last one. Without the use-count function
+    (a future torch), every request allocates."""
+
+    def __init__(self, keep: int = 2, max_bytes: int = 1 << 30) -> None:
+        self.keep, self.max_bytes = keep, max_bytes
+        self._bases: list[Tensor] = []
+
+    @staticmethod
+    def _unreferenced(base: Tensor) -> bool:
+        storage = base.untyped_storage()  # this Python handle is a reference of its own: 2 = base + handle
+        return _STORAGE_USE_COUNT(storage._cdata) <= 2
+
+    def get(self, shape: tuple[int, ...]) -> Tensor:
+        numel = math.prod(shape)
+        if _STORAGE_USE_COUNT is None or 4 * numel > self.max_bytes:
+            return torch.empty(shape)
+        base = next((b for b in self._bases if b.numel() == numel and self._unreferenced(b)), None)
+        if base is None:
+            base = torch.empty(numel)
+            self._bases = [*self._bases, base][-self.keep :]
+        else:  # most recently used last, so the list keeps the live ones
+            self._bases = [b for b in self._bases if b is not base] + [base]
+        return torch.empty(0).set_(base.untyped_storage(), 0, shape)
+
+
+def _output_pool() -> _OutputPool:
+    name = "pool_inference" if torch.is_inference_mode_enabled() else "pool"
+    if not hasattr(_CPU_WORKSPACES, name):
+        setattr(_CPU_WORKSPACES, name, _OutputPool())
     return getattr(_CPU_WORKSPACES, name)
 
 
@@ -217,71 +261,87 @@ class VirtualViewRenderer(nn.Module):
     def zbuffer(self, points_cube: Tensor, mask: Tensor | None = None) -> tuple[Tensor, Tensor]:
         """Winning point per pixel: ``index (B, V, H, W)`` int64 into N (-1 where empty) and float32 ``depth``
         ``(B, V, H, W)`` (view z of the winner, +inf where empty)."""
-        buf = self._packed_zbuffer(points_cube, mask, _workspace(points_cube.device))
+        pts, ignore, mode = self._prepare(points_cube, mask)
         B, N, _ = points_cube.shape
-        win = buf[1:].view(B, self.num_views, self.img_size, self.img_size)
+        S, V, dev = self.img_size, self.num_views, points_cube.device
+        if dev.type == "cpu":  # local point indices per sample; N marks an empty pixel
+            win = torch.empty(B, V, S * S, dtype=torch.int64)
+            self._run_samples_cpu(
+                B, lambda b, ws: win[b].copy_(self._sample_keys_cpu(pts[b], ignore[b], mode, ws))
+            )
+            index = win & _LOW32
+            empty = index == N
+        else:  # flat indices b*N + n over the batch; B*N marks an empty pixel
+            win = self._batch_keys(pts, ignore, mode, _workspace(dev))[1:].view(B, V, S * S)
+            flat = win & _LOW32
+            empty = flat == B * N
+            index = flat - (torch.arange(B, device=dev) * N).view(B, 1, 1)
         depth = (win >> 32).to(torch.int32).view(torch.float32)  # empty pixels hold +inf bits
-        flat = win & _LOW32
-        index = flat - (torch.arange(B, device=win.device) * N).view(B, 1, 1, 1)
-        return torch.where(flat == B * N, -1, index), depth
+        return torch.where(empty, -1, index).view(B, V, S, S), depth.view(B, V, S, S)
 
-    def _packed_zbuffer(self, points_cube: Tensor, mask: Tensor | None, ws: _Workspace) -> Tensor:
-        """The z-buffer as packed int64 keys ``(1 + B*V*H*W,)`` (memory of ``ws``): slot 0 is a dummy, then pixel
-        ``(b, v, i, j)`` at ``1 + ((b*V + v)*H + i)*W + j`` holds ``depth_bits << 32 | (b*N + n)`` of its winner
-        ``n`` or, if empty, ``+inf bits << 32 | B*N`` (larger than every real key)."""
+    def _prepare(self, points_cube: Tensor, mask: Tensor | None) -> tuple[Tensor, Tensor, str]:
+        """Checks the inputs; returns float32 points, ``ignore (B, N)`` int32 (-1 = all bits set for points to
+        ignore, 0 for the others) and the scatter mode for this device."""
         if points_cube.ndim != 3 or points_cube.shape[-1] != 3:
             raise ValueError(f"points_cube must be (B, N, 3), got {tuple(points_cube.shape)}")
         B, N, _ = points_cube.shape
-        M, S, V, dev = B * N, self.img_size, self.num_views, points_cube.device
-        if M >= 2**31 - 1:
-            raise ValueError(f"batch too large for the packed z-buffer: B*N = {M} >= 2^31 - 1")
-        if 1 + B * V * S * S + _DUMMY_STRIDE * B >= 2**31:
+        S, V, dev = self.img_size, self.num_views, points_cube.device
+        if B * N >= 2**31 - 1:
+            raise ValueError(f"batch too large for the packed z-buffer: B*N = {B * N} >= 2^31 - 1")
+        if 1 + B * V * S * S >= 2**31:
             raise ValueError(f"batch too large for int32 pixel addresses: B*V*H*W = {B * V * S * S}")
-        mode = (
-            self.scatter_mode if self.scatter_mode != "auto" else ("dummy" if dev.type == "cpu" else "spread")
-        )
         pts = points_cube.float()
         valid = torch.isfinite(pts).all(-1)
         if mask is not None:
             if mask.shape != (B, N):
                 raise ValueError(f"mask must be (B, N) = {(B, N)}, got {tuple(mask.shape)}")
             valid &= mask.to(dev, torch.bool)
-        # -1 (all bits set) for points to ignore, 0 for the others.
-        ignore = valid.view(M).to(torch.int32).sub_(1)
-        size = 1 + B * V * S * S  # "spread" appends a shadow copy of the pixels
-        # CPU: each render job gets its own dummy slot after the pixels, a cache line apart, so parallel jobs
-        # never write the same cache line (a shared dummy slot made two threads slower than one).
-        extra = _DUMMY_STRIDE * B if dev.type == "cpu" else 0
-        buf = ws.get("zbuf", (2 * size - 1 if mode == "spread" else size + extra,), torch.int64, dev)
-        buf.fill_((_INF_BITS << 32) | M)
-        if M == 0:
-            return buf[:size]
-        if dev.type == "cpu":
-            self._scatter_cpu(buf, pts, ignore, mode, first_dummy=size)
-        else:  # the whole batch at once; pixel0 = flat address of pixel (b, view 0, 0, 0), dummy slot included
+        mode = (
+            self.scatter_mode if self.scatter_mode != "auto" else ("dummy" if dev.type == "cpu" else "spread")
+        )
+        return pts, valid.to(torch.int32).sub_(1), mode
+
+    def _sample_keys_cpu(self, pts: Tensor, ignore: Tensor, mode: str, ws: _Workspace) -> Tensor:
+        """One sample's z-buffer (CPU) as packed keys ``(V, H*W)`` (memory of ``ws``): pixel ``(v, i, j)`` holds
+        ``depth_bits << 32 | n`` of its winner ``n`` or, if empty, ``+inf bits << 32 | N``
+        (larger than every real key). The buffer behind it starts with the dummy slot 0."""
+        N = pts.shape[0]
+        size = 1 + self.num_views * self.img_size**2  # "spread" appends a shadow copy of the pixels
+        buf = ws.get("zbuf", (2 * size - 1 if mode == "spread" else size,), torch.int64, pts.device)
+        empty = (_INF_BITS << 32) | N
+        if N:
+            self._scatter_chunk(buf, pts, ignore, 0, 1, mode, ws, fill=empty)
+        else:
+            buf.fill_(empty)
+        return buf[1:size].view(self.num_views, -1)
+
+    def _batch_keys(self, pts: Tensor, ignore: Tensor, mode: str, ws: _Workspace) -> Tensor:
+        """The whole batch's z-buffer in one pass (CUDA) as packed keys ``(1 + B*V*H*W,)``: slot 0 is a dummy,
+        then pixel ``(b, v, i, j)`` at ``1 + ((b*V + v)*H + i)*W + j`` holds ``depth_bits << 32 |
+        (b*N + n)`` of its winner ``n`` or, if empty, ``+inf bits << 32 | B*N``."""
+        B, N, _ = pts.shape
+        S, V, dev = self.img_size, self.num_views, pts.device
+        size = 1 + B * V * S * S
+        buf = ws.get("zbuf", (2 * size - 1 if mode == "spread" else size,), torch.int64, dev)
+        buf.fill_((_INF_BITS << 32) | (B * N))
+        if B * N:  # pixel0 = flat address of pixel (b, view 0, 0, 0), dummy slot included
             pixel0 = torch.arange(1, 1 + B * V * S * S, V * S * S, device=dev, dtype=torch.int32)
-            self._scatter_chunk(buf, pts.view(-1, 3), ignore, 0, pixel0.repeat_interleave(N), mode, ws)
+            self._scatter_chunk(
+                buf, pts.view(-1, 3), ignore.view(-1), 0, pixel0.repeat_interleave(N), mode, ws
+            )
         return buf[:size]
 
-    def _scatter_cpu(self, buf: Tensor, pts: Tensor, ignore: Tensor, mode: str, first_dummy: int) -> None:
-        """CPU: one sample at a time per thread (cache-sized, reused candidate buffers). With a batch and
-        ``torch.get_num_threads()`` > 1, that many threads render whole samples at once; they write disjoint
-        images of ``buf`` and their own dummy slots, so the result is identical to the serial one. (Splitting
-        the views of a single sample among threads was measured slower than one thread, and is not done.)"""
-        B, N, _ = pts.shape
-        S, V = self.img_size, self.num_views
+    def _run_samples_cpu(self, B: int, job: Callable[[int, _Workspace], object]) -> None:
+        """Runs ``job(b, workspace)`` for every sample: serially, or with ``torch.get_num_threads()`` > 1 and a
+        batch, on that many threads (each with its own workspace; jobs write disjoint memory, so the result is
+        identical to the serial one). Splitting one sample among threads was measured slower than one thread."""
         intra = torch.get_num_threads()
         threads = min(intra, B)
         inference = torch.is_inference_mode_enabled()
 
         def run(b: int) -> None:
-            dummy = first_dummy + _DUMMY_STRIDE * b if mode == "dummy" else 0
             with torch.inference_mode(inference), torch.no_grad():
-                rows = slice(b * N, (b + 1) * N)
-                pixel0 = 1 + b * V * S * S
-                self._scatter_chunk(
-                    buf, pts[b], ignore[rows], b * N, pixel0, mode, _workspace(buf.device), dummy
-                )
+                job(b, _workspace(torch.device("cpu")))
 
         if threads <= 1:
             for b in range(B):
@@ -305,33 +365,16 @@ class VirtualViewRenderer(nn.Module):
         mode: str,
         ws: _Workspace,
         dummy: int = 0,
+        fill: int | None = None,
     ) -> None:
         """Scatter-min the keys of ``m`` points ``pts (m, 3)`` (flat indices ``first ..``, ``ignore (m,)`` int32
         -1/0) into every pixel their disc covers, in all 5 views; ``pixel0`` (scalar or
         ``(m,)``) is the address of each point's pixel (view 0, 0, 0); ``dummy`` the slot that candidates
-        outside a disc go to in ``"dummy"`` mode."""
+        outside a disc go to in ``"dummy"`` mode. ``fill``: with a scalar ``pixel0``, each view's pixels are set to
+        this key right before its scatter (instead of by the caller up front), so they are still in cache."""
+        coords, flat, tap_d2, tap_pix = self._taps(pts, first, ws)
         m, dev = pts.shape[0], pts.device
-        S, T, f32, i32 = self.img_size, 2 * self._reach + 1, torch.float32, torch.int32
-        coords = torch.nan_to_num(pts.t(), 0.0, 0.0, 0.0, out=ws.get("coords", (3, m), f32, dev))
-        flat = torch.arange(first, first + m, out=ws.get("flat", (m,), torch.int64, dev))
-
-        # Per image-axis quantity: T candidate pixels and their squared centre distances (T, m).
-        tap_d2 = ws.get("tap_d2", (len(_AXIS_QUANTITIES), T, m), f32, dev)
-        tap_pix = ws.get("tap_pix", (len(_AXIS_QUANTITIES), T, m), i32, dev)
-        q = ws.get("q", (m,), f32, dev)
-        j = ws.get("j", (T, m), f32, dev)
-        jc = ws.get("jc", (T, m), f32, dev)
-        offsets = torch.arange(-self._reach, self._reach + 1, device=dev, dtype=f32)[:, None]
-        for i, (axis, sign) in enumerate(_AXIS_QUANTITIES):
-            _one_plus(coords[axis], sign, out=q).mul_(S / 2).clamp_(
-                -2 * S, 3 * S
-            )  # clamp: far points stay off
-            torch.add(q.floor()[None], offsets, out=j)  # pixel indices floor(q) - reach .. + reach (exact)
-            d2 = torch.add(j, 0.5, out=tap_d2[i]).sub_(q).square_()  # (centre - q)^2 exactly as the reference
-            torch.clamp(j, 0, S - 1, out=jc)
-            d2.addcmul_(j.sub_(jc), j, value=_OFF_IMAGE)  # off-image pixels: +1e30 or more, never covered
-            tap_pix[i].copy_(jc)
-
+        S, T, f32, i32 = self.img_size, tap_d2.shape[1], torch.float32, torch.int32
         z = ws.get("z", (m,), f32, dev)
         z_bad = ws.get("z_bad", (m,), i32, dev)
         key = ws.get("key", (m,), torch.int64, dev)
@@ -344,18 +387,45 @@ class VirtualViewRenderer(nn.Module):
             # Ignored points and points behind the camera (z < 0: sign bit set) get +inf added to the row distance.
             torch.bitwise_right_shift(z.view(i32), 31, out=z_bad).bitwise_or_(ignore).bitwise_and_(_INF_BITS)
             torch.add(tap_d2[iv], z_bad.view(f32), out=row_d2)
-            torch.mul(tap_pix[iv], S, out=row_addr).add_(
-                pixel0 + view * S * S
-            )  # address of each row's pixel 0
+            # address of each row's pixel 0
+            torch.mul(tap_pix[iv], S, out=row_addr).add_(pixel0 + view * S * S)
             key.copy_(z.view(i32)).bitwise_left_shift_(32).bitwise_or_(
                 flat
             )  # z >= 0: float order = int order
+            if fill is not None:  # this view's pixels, filled last so they are still in cache for the scatter
+                start = pixel0 + view * S * S
+                buf[start : start + S * S].fill_(fill)
             if mode == "dummy":
                 self._scatter_via_dummy(buf, row_d2, row_addr, tap_d2[iu], tap_pix[iu], key, ws, dummy)
             elif mode == "spread":
                 self._scatter_spread(buf, row_d2, row_addr, tap_d2[iu], tap_pix[iu], key)
             else:
                 self._scatter_compact(buf, row_d2, row_addr, tap_d2[iu], tap_pix[iu], key)
+
+    def _taps(self, pts: Tensor, first: int, ws: _Workspace) -> tuple[Tensor, Tensor, Tensor, Tensor]:
+        """What every view needs of ``pts (m, 3)`` (memory of ``ws``): cube coordinates ``(3, m)`` with NaN as 0,
+        flat point indices ``first ..`` ``(m,)``, and per image-axis quantity the ``T`` candidate pixel indices
+        ``(Q, T, m)`` int32 (clamped to the image) and their squared centre distances ``(Q, T, m)`` (+1e30 or more
+        for pixels off the image)."""
+        m, dev = pts.shape[0], pts.device
+        S, T, f32 = self.img_size, 2 * self._reach + 1, torch.float32
+        coords = torch.nan_to_num(pts.t(), 0.0, 0.0, 0.0, out=ws.get("coords", (3, m), f32, dev))
+        flat = torch.arange(first, first + m, out=ws.get("flat", (m,), torch.int64, dev))
+        tap_d2 = ws.get("tap_d2", (len(_AXIS_QUANTITIES), T, m), f32, dev)
+        tap_pix = ws.get("tap_pix", (len(_AXIS_QUANTITIES), T, m), torch.int32, dev)
+        q = ws.get("q", (m,), f32, dev)
+        j = ws.get("j", (T, m), f32, dev)
+        jc = ws.get("jc", (T, m), f32, dev)
+        offsets = torch.arange(-self._reach, self._reach + 1, device=dev, dtype=f32)[:, None]
+        for i, (axis, sign) in enumerate(_AXIS_QUANTITIES):
+            # clamp: far points stay off the image
+            _one_plus(coords[axis], sign, out=q).mul_(S / 2).clamp_(-2 * S, 3 * S)
+            torch.add(q.floor()[None], offsets, out=j)  # pixel indices floor(q) - reach .. + reach (exact)
+            d2 = torch.add(j, 0.5, out=tap_d2[i]).sub_(q).square_()  # (centre - q)^2 exactly as the reference
+            torch.clamp(j, 0, S - 1, out=jc)
+            d2.addcmul_(j.sub_(jc), j, value=_OFF_IMAGE)  # off-image pixels: +1e30 or more, never covered
+            tap_pix[i].copy_(jc)
+        return coords, flat, tap_d2, tap_pix
 
     def _scatter_via_dummy(
         self,
@@ -415,44 +485,77 @@ class VirtualViewRenderer(nn.Module):
         ``mask (B, N)``: False entries (padding, out-of-bounds points) are ignored. Non-finite points and points
         behind a view (view depth < 0, i.e. outside the cube on that view's axis) are ignored as well.
         """
-        if points_cube.ndim != 3 or points_cube.shape[-1] != 3:
-            raise ValueError(f"points_cube must be (B, N, 3), got {tuple(points_cube.shape)}")
+        pts, ignore, mode = self._prepare(points_cube, mask)
         B, N, _ = points_cube.shape
         if feats.ndim != 3 or feats.shape[:2] != (B, N):
             raise ValueError(f"feats must be (B, N, F) = ({B}, {N}, F), got {tuple(feats.shape)}")
-        S, V, M = self.img_size, self.num_views, B * N
+        S, V, C = self.img_size, self.num_views, 3 + feats.shape[-1]
         dev = points_cube.device
-        ws = _workspace(dev)
-        win = self._packed_zbuffer(points_cube, mask, ws)[1:].view(B * V, S * S)
-        out = torch.empty((B, V, 3 + feats.shape[-1] + 4, S, S), device=dev)
+        if dev.type == "cpu":
+            out = _output_pool().get((B, V, C + 4, S, S))
 
-        # Winners' xyz and features: gather from channel-major attributes whose column M (the index an empty
-        # pixel unpacks to) is zero.
-        C = 3 + feats.shape[-1]
+            def job(b: int, ws: _Workspace) -> None:
+                win = self._sample_keys_cpu(pts[b], ignore[b], mode, ws)
+                self._write_sample_cpu(out[b], win, self._src_table(points_cube[b], feats[b], ws), ws)
+
+            self._run_samples_cpu(B, job)
+            return out
+
+        M, ws = B * N, _workspace(dev)
+        win = self._batch_keys(pts, ignore, mode, ws)[1:].view(B * V, S * S)
+        out = torch.empty((B, V, C + 4, S, S), device=dev)
+        # Winners' xyz and features: one gather for the batch from channel-major attributes whose column M (the
+        # index an empty pixel unpacks to) is zero.
         src = ws.get("src", (C, M + 1), torch.float32, dev)
         src[:3, :M] = points_cube.reshape(M, 3).t()
         src[3:, :M] = feats.reshape(M, C - 3).t()
         src[:, M] = 0
         index = torch.bitwise_and(win, _LOW32, out=ws.get("index_out", (B * V, S * S), torch.int64, dev))
-        if dev.type == "cuda":  # one gather for the batch (few launches); the permuted copy is cheap there
-            out[:, :, :C] = src.index_select(1, index.view(-1)).view(C, B, V, S, S).permute(1, 2, 0, 3, 4)
-        else:  # straight into the output, image by image
-            for i in range(B * V):
-                torch.index_select(src, 1, index[i], out=out[i // V, i % V, :C].view(C, S * S))
-
-        # Depth: winner's z minus the mean over filled pixels, -1 where empty, in integer bit arithmetic.
-        zbits = ws.get("zbits", (B * V, S * S), torch.int32, dev)
-        if sys.byteorder == "little":  # the high words of the keys are the depth bits
-            zbits.copy_(win.view(torch.int32).view(B * V, S * S, 2)[..., 1])
-        else:
-            zbits.copy_(win >> 32)
-        filled = torch.sub(zbits, _INF_BITS, out=ws.get("filled", (B * V, S * S), torch.int32, dev))
-        filled.bitwise_right_shift_(31)  # -1 where filled (depth bits below +inf), 0 where empty
-        z = zbits.bitwise_and_(filled).view(torch.float32)  # 0.0 where empty
-        mean = z.sum(-1, keepdim=True) / filled.sum(-1, keepdim=True).neg_().clamp_min_(1)
-        depth = out[:, :, C]
-        torch.sub(z.view(B, V, S, S), mean.view(B, V, 1, 1), out=depth)
-        depth_bits = depth.view(torch.int32).bitwise_xor_(_NEG_ONE_BITS)
-        depth_bits.bitwise_and_(filled.view(B, V, S, S)).bitwise_xor_(_NEG_ONE_BITS)  # empty: -1.0
+        out[:, :, :C] = src.index_select(1, index.view(-1)).view(C, B, V, S, S).permute(1, 2, 0, 3, 4)
+        self._write_depth(win, out[:, :, C], ws)
         out[:, :, C + 1 :] = self.pixel_loc.to(dev, out.dtype)
         return out
+
+    @staticmethod
+    def _src_table(points: Tensor, feats: Tensor, ws: _Workspace) -> Tensor:
+        """Channel-major xyz + features ``(C, N + 1)`` of one sample's points (memory of ``ws``); column N (the
+        index an empty pixel unpacks to) is zero."""
+        N, C = points.shape[0], 3 + feats.shape[-1]
+        src = ws.get("src", (C, N + 1), torch.float32, points.device)
+        src[:3, :N] = points.t()
+        src[3:, :N] = feats.t()
+        src[:, N] = 0
+        return src
+
+    def _write_sample_cpu(self, out: Tensor, win: Tensor, src: Tensor, ws: _Workspace) -> None:
+        """One sample's channels ``out (V, C + 4, H, W)`` from its keys ``win (V, H*W)``: the winners' xyz and
+        features gathered from ``src`` (:meth:`_src_table`) straight into the output, image by image, then depth
+        and the pixel-location channels."""
+        C, P = src.shape[0], win.shape[-1]
+        index = torch.bitwise_and(
+            win, _LOW32, out=ws.get("index_out", tuple(win.shape), torch.int64, win.device)
+        )
+        for v in range(self.num_views):
+            torch.index_select(src, 1, index[v], out=out[v, :C].view(C, P))
+        self._write_depth(win, out[:, C], ws)
+        out[:, C + 1 :] = self.pixel_loc
+
+    @staticmethod
+    def _write_depth(win: Tensor, depth: Tensor, ws: _Workspace) -> None:
+        """Depth channel ``depth (..., H, W)`` (a view into the output) from keys ``win (R, H*W)``: the winner's z
+        minus the mean over the filled pixels of its image, -1 where empty, in integer bit arithmetic."""
+        R, P = win.shape
+        zbits = ws.get("zbits", (R, P), torch.int32, win.device)
+        if sys.byteorder == "little":  # the high words of the keys are the depth bits
+            zbits.copy_(win.view(torch.int32).view(R, P, 2)[..., 1])
+        else:
+            zbits.copy_(win >> 32)
+        filled = torch.sub(zbits, _INF_BITS, out=ws.get("filled", (R, P), torch.int32, win.device))
+        filled.bitwise_right_shift_(31)  # -1 where filled (depth bits below +inf), 0 where empty
+        z = zbits.bitwise_and_(filled).view(torch.float32)  # 0.0 where empty
+        # int32 counts (no int64 copy of the mask for the sum); mean of z over the filled pixels.
+        mean = z.sum(-1, keepdim=True) / filled.sum(-1, keepdim=True, dtype=torch.int32).neg_().clamp_min_(1)
+        grid = depth.shape
+        torch.sub(z.view(grid), mean.view(*grid[:-2], 1, 1), out=depth)
+        depth_bits = depth.view(torch.int32).bitwise_xor_(_NEG_ONE_BITS)
+        depth_bits.bitwise_and_(filled.view(grid)).bitwise_xor_(_NEG_ONE_BITS)  # empty: -1.0

@@ -253,3 +253,29 @@ def test_threaded_cpu_render_is_identical_to_serial(batch: int, threads: int):
     finally:
         torch.set_num_threads(before)
     assert torch.equal(serial, threaded)
+
+
+def test_cpu_output_memory_is_reused_only_once_released() -> None:
+    """The CPU renderer recycles an output's memory, but never while a view, a NumPy array or autograd holds it."""
+    renderer = VirtualViewRenderer(img_size=24)
+    pts, feats, mask = _random_cloud(B=1, N=300, seed=5)
+    other = pts.flip(-1)
+    first = renderer(pts, feats, mask)
+    address, want = first.data_ptr(), first.clone()
+
+    view, array = first[:, :, :3], first.numpy()
+    del first
+    second = renderer(other, feats, mask)
+    assert second.data_ptr() != address
+    assert torch.equal(view, want[:, :, :3]) and torch.equal(torch.from_numpy(array), want)
+    del view, array, second
+
+    third = renderer(pts, feats, mask)  # nothing refers to the first output's memory any more: reused
+    assert third.data_ptr() == address and torch.equal(third, want)
+
+    weight = torch.ones((), requires_grad=True)
+    loss = (third * weight).sum()  # autograd saves `third` for the weight's gradient
+    del third
+    renderer(other, feats, mask)
+    loss.backward()
+    assert weight.grad == want.sum()
