@@ -472,11 +472,12 @@ def _static_json(rig: CameraRig) -> dict[str, Any]:
 
 def finished_shard(shard_dir: Path, cfg: CollectConfig) -> ShardResult | None:
     """The stored result if ``shard_dir`` is complete and matches ``cfg``; None if it must be (re)done."""
-    from lerobot.datasets.dataset_metadata import LeRobotDatasetMetadata
-
     marker = shard_dir / MARKER
+    # Checked before importing LeRobot (~5 s), so a fresh run starts its helpers without waiting for it.
     if not marker.exists():
         return None
+    from lerobot.datasets.dataset_metadata import LeRobotDatasetMetadata
+
     try:
         result = ShardResult(**json.loads(marker.read_text()))
     except (json.JSONDecodeError, TypeError):
@@ -509,23 +510,61 @@ def _worker(spec: ShardSpec, cfg: CollectConfig, shard_dir: Path, progress: Any)
     return collect_shard(spec, cfg, shard_dir, on_episode=(lambda: progress.put(1)) if progress else None)
 
 
+def _warm_up(task_name: str, render: RenderConfig, model_seed: int) -> None:
+    """A helper's first act: the imports and the env its first shard needs (seconds that would otherwise be
+    spent inside that shard). A failure here is left for the shard itself to report."""
+    import sigma_data  # noqa: F401  (headless GL before robosuite in a fresh process)
+
+    with contextlib.suppress(Exception):
+        import lerobot.datasets.lerobot_dataset  # noqa: F401  (~5 s: LeRobot imports transformers, torchvision)
+
+        cached_env(task_name, render, model_seed)
+
+
+class Helpers:
+    """``n`` spawned helper processes for a run, started as soon as the run knows it has work for them, so
+    their start-up (interpreter, imports, env: ~8 s) overlaps this process's own; they exit while this process
+    merges the shards. Spawned, not forked: no inherited GL contexts or MuJoCo state."""
+
+    def __init__(self, n: int, cfg: CollectConfig, first_task: str) -> None:
+        ctx = mp.get_context("spawn")
+        self.manager = ctx.Manager()
+        self.progress = self.manager.Queue()
+        self.pool = ProcessPoolExecutor(
+            max_workers=n,
+            mp_context=ctx,
+            initializer=_warm_up,
+            initargs=(first_task, cfg.render_config(), cfg.model_seed),
+        )
+        self.n = n
+        # One trivial job per helper: the pool spawns its processes now, not at the first shard.
+        for _ in range(n):
+            self.pool.submit(int)
+
+    def release(self) -> None:
+        """No more shards: the helpers exit in the background (call :meth:`close` later to reap them)."""
+        self.pool.shutdown(wait=False, cancel_futures=True)
+
+    def close(self) -> None:
+        self.pool.shutdown(wait=True, cancel_futures=True)
+        self.manager.shutdown()
+
+
 def _run_processes(
-    todo: list[ShardSpec], cfg: CollectConfig, shards_dir: Path, pbar: Any
+    todo: list[ShardSpec], cfg: CollectConfig, shards_dir: Path, pbar: Any, helpers: Helpers | None
 ) -> list[ShardResult]:
-    """Collect ``todo`` with ``cfg.workers`` processes: this one and ``workers - 1`` spawned helpers.
+    """Collect ``todo`` with this process and the spawned ``helpers``.
 
     Shards are handed out one at a time: each helper gets the next one from the front of the queue when it is
-    free (a feeder thread per helper), while this process, whose imports are done, starts at once and takes
-    shards from the back. A shard that raises stops the hand-out and the error is re-raised; finished shards
-    stay for a rerun.
+    free (a feeder thread per helper), while this process starts at once and takes shards from the back. A
+    shard that raises stops the hand-out and the error is re-raised; finished shards stay for a rerun.
     """
     tasks = list(dict.fromkeys(s.task for s in todo))
-    helpers = min(cfg.workers, len(todo)) - 1
 
     def run_here(spec: ShardSpec, after_episode: Callable[[], None]) -> ShardResult:
         return collect_shard(spec, cfg, shards_dir / spec.name, on_episode=after_episode)
 
-    if helpers <= 0:
+    if helpers is None:
         check_cameras_exist(cfg, tasks, reuse=True)  # this process's envs, built once per task
         return [run_here(s, lambda: pbar.update(1)) for s in todo]
 
@@ -533,56 +572,54 @@ def _run_processes(
     lock = threading.Lock()
     results: dict[str, ShardResult] = {}
     errors: list[BaseException] = []
-    ctx = mp.get_context("spawn")  # fresh processes: no inherited GL contexts or MuJoCo state
-    with ctx.Manager() as manager, ProcessPoolExecutor(max_workers=helpers, mp_context=ctx) as pool:
-        progress = manager.Queue()
+    pool, progress = helpers.pool, helpers.progress
 
-        def feed() -> None:  # keeps one helper busy until the queue is empty or a shard failed
-            while True:
-                with lock:
-                    if errors or not pending:
-                        return
-                    spec = pending.popleft()
-                try:
-                    results[spec.name] = pool.submit(
-                        _worker, spec, cfg, shards_dir / spec.name, progress
-                    ).result()
-                except BaseException as exc:
-                    with lock:
-                        errors.append(exc)
-                    return
-
-        def tick() -> None:  # progress of every process; stop on a helper's error
-            pbar.update(1)
-            with contextlib.suppress(queue.Empty):
-                while True:
-                    pbar.update(progress.get_nowait())
-            if errors:
-                raise errors[0]
-
-        feeders = [threading.Thread(target=feed, daemon=True) for _ in range(helpers)]
-        for t in feeders:
-            t.start()
-        try:
-            check_cameras_exist(cfg, tasks, reuse=True)  # while the helpers start (seconds of imports)
-            while True:
-                with lock:
-                    if errors or not pending:
-                        break
-                    spec = pending.pop()
-                results[spec.name] = run_here(spec, tick)
-            while any(t.is_alive() for t in feeders):
-                with contextlib.suppress(queue.Empty):
-                    pbar.update(progress.get(timeout=0.2))
-            if errors:
-                raise errors[0]
-        except BaseException:
+    def feed() -> None:  # keeps one helper busy until the queue is empty or a shard failed
+        while True:
             with lock:
-                pending.clear()  # helpers finish their current shard and stop
-            raise
+                if errors or not pending:
+                    return
+                spec = pending.popleft()
+            try:
+                results[spec.name] = pool.submit(
+                    _worker, spec, cfg, shards_dir / spec.name, progress
+                ).result()
+            except BaseException as exc:
+                with lock:
+                    errors.append(exc)
+                return
+
+    def tick() -> None:  # progress of every process; stop on a helper's error
+        pbar.update(1)
         with contextlib.suppress(queue.Empty):
             while True:
                 pbar.update(progress.get_nowait())
+        if errors:
+            raise errors[0]
+
+    feeders = [threading.Thread(target=feed, daemon=True) for _ in range(helpers.n)]
+    for t in feeders:
+        t.start()
+    try:
+        check_cameras_exist(cfg, tasks, reuse=True)  # while the helpers start (seconds of imports)
+        while True:
+            with lock:
+                if errors or not pending:
+                    break
+                spec = pending.pop()
+            results[spec.name] = run_here(spec, tick)
+        while any(t.is_alive() for t in feeders):
+            with contextlib.suppress(queue.Empty):
+                pbar.update(progress.get(timeout=0.2))
+        if errors:
+            raise errors[0]
+    except BaseException:
+        with lock:
+            pending.clear()  # helpers finish their current shard and stop
+        raise
+    with contextlib.suppress(queue.Empty):
+        while True:
+            pbar.update(progress.get_nowait())
     return [results[s.name] for s in todo]
 
 
@@ -678,6 +715,8 @@ def collect(cfg: CollectConfig) -> CollectSummary:
             done[spec.name] = prev
     todo = [s for s in shards if s.name not in done]
     total = sum(len(s.seeds) for s in todo)
+    n_helpers = min(cfg.workers, len(todo)) - 1 if cfg.executor != "datatrove" else 0
+    helpers = Helpers(n_helpers, cfg, todo[0].task) if n_helpers > 0 else None
     try:
         if todo and cfg.executor == "datatrove":
             check_cameras_exist(cfg, list(dict.fromkeys(s.task for s in todo)), reuse=False)
@@ -687,9 +726,15 @@ def collect(cfg: CollectConfig) -> CollectSummary:
                 results = _run_datatrove(todo, cfg) if todo else []
                 pbar.update(total)
             else:
-                results = _run_processes(todo, cfg, shards_dir, pbar) if todo else []
+                results = _run_processes(todo, cfg, shards_dir, pbar, helpers) if todo else []
+    except BaseException:
+        if helpers is not None:
+            helpers.close()  # a helper finishes its current shard (kept for a rerun), then stops
+        raise
     finally:
         close_envs()
+    if helpers is not None:
+        helpers.release()  # they exit while the shards are merged
     for r in results:
         done[r.name] = r
     ordered = [done[s.name] for s in shards]
@@ -703,6 +748,8 @@ def collect(cfg: CollectConfig) -> CollectSummary:
             continue
         merge_shards(kind, roots, target, f"{cfg.repo_id}_{kind}")
         outputs[kind] = target
+    if helpers is not None:
+        helpers.close()
     summary = CollectSummary(ordered, outputs, time.perf_counter() - start)
     (out / "collect.json").write_text(
         json.dumps(
