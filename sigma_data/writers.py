@@ -19,6 +19,7 @@ calibration notes and one record per written episode (task, variation, seed, key
 from __future__ import annotations
 
 import json
+import os
 import shutil
 from collections.abc import Callable, Iterator, Mapping, Sequence
 from contextlib import contextmanager
@@ -158,6 +159,18 @@ def versions() -> dict[str, str]:
     return out
 
 
+def quiet_video_encoders() -> None:
+    """Keep the video encoders' chatter off the terminal; their errors and FFmpeg's warnings still show.
+
+    SVT-AV1 (LeRobot's RGB codec) prints its whole configuration and remarks on LeRobot's preset for every video
+    (about 25 lines each), and FFmpeg's mp4 muxer a line per file at info level -- over 180 lines for a
+    2-episode dense collection. A ``SVT_LOG`` set by the user wins."""
+    os.environ.setdefault("SVT_LOG", "1")  # SVT-AV1 log levels: 0 fatal, 1 error, 2 warn, 3 info (default)
+    import av.logging
+
+    av.logging.set_libav_level(av.logging.WARNING)
+
+
 def read_sidecar(root: Path) -> dict[str, Any]:
     path = Path(root) / SIDECAR
     if not path.exists():
@@ -195,6 +208,7 @@ class SigmaWriter:
         # LeRobot maps every saved episode through `datasets`, which draws a "Map" bar each time; sigma's own
         # progress bars (per episode / shard) say the same thing once.
         disable_progress_bars()
+        quiet_video_encoders()
         self.root = Path(root)
         self.layout = layout
         if self.root.exists():

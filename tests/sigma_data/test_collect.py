@@ -2,7 +2,10 @@
 LeRobotDataset; determinism and resume after an interrupted shard; clear errors on bad names."""
 
 import importlib.util
+import os
 import shutil
+import subprocess
+import sys
 from dataclasses import replace
 
 import numpy as np
@@ -146,3 +149,18 @@ def test_datatrove_local_executor(first_run, tmp_path):
     _, a = columns(out / "keyframe", ["action"])
     _, b = columns(tmp_path / "dt" / "keyframe", ["action"])
     np.testing.assert_array_equal(a["action"], b["action"])
+
+
+def test_cli_output_is_the_summary_line_only(tmp_path):
+    """A dense collection with videos from the command line: no video-encoder chatter (SVT-AV1 printed ~25 lines
+    per video and FFmpeg's muxer one per file), only the summary line. A fresh process: SVT reads its log level
+    once per process."""
+    env = {k: v for k, v in os.environ.items() if k != "SVT_LOG"}
+    proc = subprocess.run(
+        [sys.executable, "-m", "sigma_data.cli", "collect", "--tasks=lift", "--episodes=1", "--height=32",
+         "--width=32", "--cameras=agentview", f"--output_dir={tmp_path}", "--progress=false"],
+        capture_output=True, text=True, env=env, timeout=600,
+    )  # fmt: skip
+    assert proc.returncode == 0, proc.stderr[-3000:]
+    lines = [line for line in (proc.stdout + proc.stderr).splitlines() if line.strip()]
+    assert len(lines) == 1 and lines[0].startswith("collect: kept 1"), lines[:20]
