@@ -15,6 +15,8 @@ from __future__ import annotations
 
 import hashlib
 import importlib.util
+from collections.abc import Iterator
+from contextlib import contextmanager
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -137,6 +139,24 @@ def minilm_model_dir() -> Path:
     return path
 
 
+@contextmanager
+def _quiet_transformers_loading() -> Iterator[None]:
+    """Without transformers' weight-loading bar and key report, for a checkpoint whose bytes were verified: the
+    official MiniLM always reports the same three unused keys (the pooler sigma does not build and an old
+    ``position_ids`` buffer), a table on every ``lerobot-train`` start. Errors still raise."""
+    from transformers.utils import logging as hf_logging
+
+    verbosity, bar = hf_logging.get_verbosity(), hf_logging.is_progress_bar_enabled()
+    hf_logging.set_verbosity_error()
+    hf_logging.disable_progress_bar()
+    try:
+        yield
+    finally:
+        hf_logging.set_verbosity(verbosity)
+        if bar:
+            hf_logging.enable_progress_bar()
+
+
 def sha256_file(path: Path, chunk: int = 1 << 20) -> str:
     h = hashlib.sha256()
     with open(path, "rb") as f:
@@ -165,8 +185,9 @@ class MiniLMTextEncoder(TextEncoder):
                 f"{weights}: SHA-256 {digest} does not match the official all-MiniLM-L6-v2 weights "
                 f"({expected_sha256}); refusing to load modified or corrupted weights"
             )
-        self.tokenizer = AutoTokenizer.from_pretrained(path)
-        self.model = BertModel.from_pretrained(path, add_pooling_layer=False)
+        with _quiet_transformers_loading():
+            self.tokenizer = AutoTokenizer.from_pretrained(path)
+            self.model = BertModel.from_pretrained(path, add_pooling_layer=False)
         self.max_length = max_length
         self.token_dim = self.sentence_dim = self.model.config.hidden_size
         self._freeze()

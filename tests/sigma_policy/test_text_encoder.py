@@ -101,3 +101,21 @@ def test_minilm_matches_sentence_transformers_and_caches() -> None:
 def test_minilm_refuses_wrong_checksum() -> None:
     with pytest.raises(ValueError, match="SHA-256"):
         MiniLMTextEncoder(expected_sha256="0" * 64)
+
+
+def test_minilm_loads_without_transformers_report_and_restores_its_settings():
+    """The verified MiniLM checkpoint loads without transformers' key table and progress bar (printed on every
+    lerobot-train start before), and transformers' own logging settings are left as they were."""
+    import subprocess
+    import sys
+
+    code = (
+        "from transformers.utils import logging as L\n"
+        "from sigma_policy.text_encoder import MiniLMTextEncoder\n"
+        "MiniLMTextEncoder()\n"
+        "print(L.get_verbosity(), L.is_progress_bar_enabled())\n"
+    )
+    proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=300)
+    assert proc.returncode == 0, proc.stderr[-3000:]
+    assert proc.stdout.split() == ["30", "True"]  # WARNING and bars on: the defaults, restored
+    assert "LOAD REPORT" not in proc.stderr and "Loading weights" not in proc.stderr, proc.stderr[-3000:]
