@@ -660,20 +660,36 @@ def _typed_parquet_writes(features: dict[str, dict]):
         aggregate.to_parquet_one_row_group_per_episode = original
 
 
+@contextlib.contextmanager
+def _datasets_bars_stay_off():
+    """``datasets``' per-file bars ("Generating train split", "Map") off for the whole merge. LeRobot 0.6.1 wraps
+    its metadata reads in ``SuppressProgressBars``, whose exit turns the bars back *on* instead of restoring what
+    was set, so a merge of n shards printed ~4n bars. Only that exit is swapped, and restored."""
+    from datasets import disable_progress_bars
+    from lerobot.utils.utils import SuppressProgressBars
+
+    disable_progress_bars()
+    original = SuppressProgressBars.__exit__
+    SuppressProgressBars.__exit__ = lambda self, *exc: None
+    try:
+        yield
+    finally:
+        SuppressProgressBars.__exit__ = original
+
+
 def merge_shards(kind: str, shard_roots: list[Path], out: Path, repo_id: str) -> None:
     """Merge shard datasets of one kind with LeRobot's ``aggregate_datasets`` and merge their sidecars."""
-    from datasets import disable_progress_bars
     from lerobot.datasets.aggregate import aggregate_datasets
     from lerobot.datasets.io_utils import load_info
 
-    disable_progress_bars()  # LeRobot's own "Copy data and videos" bar stays; the per-file "Map" bars go
     if out.exists():
         shutil.rmtree(out)
     if len(shard_roots) == 1:  # already the merged dataset: LeRobot's merge would rewrite the same files
         shutil.copytree(shard_roots[0], out)
     else:
         features = load_info(shard_roots[0]).features  # shapes as tuples, as LeRobot's metadata gives them
-        with _typed_parquet_writes(features):
+        # LeRobot's own "Copy data and videos" bar stays (one for the merge); the per-file bars go.
+        with _typed_parquet_writes(features), _datasets_bars_stay_off():
             aggregate_datasets(
                 repo_ids=[repo_id] * len(shard_roots),
                 aggr_repo_id=repo_id,

@@ -164,3 +164,16 @@ def test_cli_output_is_the_summary_line_only(tmp_path):
     assert proc.returncode == 0, proc.stderr[-3000:]
     lines = [line for line in (proc.stdout + proc.stderr).splitlines() if line.strip()]
     assert len(lines) == 1 and lines[0].startswith("collect: kept 1"), lines[:20]
+
+
+def test_merge_prints_no_per_file_bars(first_run, tmp_path, capfd):
+    """LeRobot's SuppressProgressBars turns datasets' bars back on as it exits; a merge keeps them off."""
+    from datasets.utils.logging import enable_progress_bar
+
+    out, summary = first_run
+    enable_progress_bar()  # as LeRobot leaves them after any metadata read
+    roots = [out / "shards" / s.name / "keyframe" for s in summary.shards]
+    collect_module.merge_shards("keyframe", roots, tmp_path / "merged", "local/merged")
+    err = capfd.readouterr().err
+    assert "Copy data and videos" in err  # LeRobot's one bar for the merge stays
+    assert "Generating train split" not in err and "Map" not in err, err[-2000:]
