@@ -756,16 +756,18 @@ def collect(cfg: CollectConfig) -> CollectSummary:
     ordered = [done[s.name] for s in shards]
 
     outputs: dict[str, Path] = {}
-    for kind in (k for k, on in (("dense", cfg.dense), ("keyframe", cfg.keyframe)) if on):
-        roots = [shards_dir / r.name / kind for r in ordered if r.episodes.get(kind, 0) > 0]
-        target = out / kind
-        if not roots:
-            shutil.rmtree(target, ignore_errors=True)
-            continue
-        merge_shards(kind, roots, target, f"{cfg.repo_id}_{kind}")
-        outputs[kind] = target
-    if helpers is not None:
-        helpers.close()
+    try:
+        for kind in (k for k, on in (("dense", cfg.dense), ("keyframe", cfg.keyframe)) if on):
+            roots = [shards_dir / r.name / kind for r in ordered if r.episodes.get(kind, 0) > 0]
+            target = out / kind
+            if not roots:
+                shutil.rmtree(target, ignore_errors=True)
+                continue
+            merge_shards(kind, roots, target, f"{cfg.repo_id}_{kind}")
+            outputs[kind] = target
+    finally:
+        if helpers is not None:
+            helpers.close()
     summary = CollectSummary(ordered, outputs, time.perf_counter() - start)
     (out / "collect.json").write_text(
         json.dumps(
