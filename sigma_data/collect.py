@@ -733,30 +733,26 @@ def collect(cfg: CollectConfig) -> CollectSummary:
     total = sum(len(s.seeds) for s in todo)
     n_helpers = min(cfg.workers, len(todo)) - 1 if cfg.executor != "datatrove" else 0
     helpers = Helpers(n_helpers, cfg, todo[0].task) if n_helpers > 0 else None
-    try:
-        if todo and cfg.executor == "datatrove":
-            check_cameras_exist(cfg, list(dict.fromkeys(s.task for s in todo)), reuse=False)
-        shards_dir.mkdir(parents=True, exist_ok=True)
-        with tqdm(total=total, desc="episodes", unit="ep", disable=not cfg.progress) as pbar:
-            if cfg.executor == "datatrove":
-                results = _run_datatrove(todo, cfg) if todo else []
-                pbar.update(total)
-            else:
-                results = _run_processes(todo, cfg, shards_dir, pbar, helpers) if todo else []
-    except BaseException:
+    try:  # the helpers are reaped on every way out; after an error a helper first finishes its current shard
+        try:
+            if todo and cfg.executor == "datatrove":
+                check_cameras_exist(cfg, list(dict.fromkeys(s.task for s in todo)), reuse=False)
+            shards_dir.mkdir(parents=True, exist_ok=True)
+            with tqdm(total=total, desc="episodes", unit="ep", disable=not cfg.progress) as pbar:
+                if cfg.executor == "datatrove":
+                    results = _run_datatrove(todo, cfg) if todo else []
+                    pbar.update(total)
+                else:
+                    results = _run_processes(todo, cfg, shards_dir, pbar, helpers) if todo else []
+        finally:
+            close_envs()
         if helpers is not None:
-            helpers.close()  # a helper finishes its current shard (kept for a rerun), then stops
-        raise
-    finally:
-        close_envs()
-    if helpers is not None:
-        helpers.release()  # they exit while the shards are merged
-    for r in results:
-        done[r.name] = r
-    ordered = [done[s.name] for s in shards]
+            helpers.release()  # they exit while the shards are merged
+        for r in results:
+            done[r.name] = r
+        ordered = [done[s.name] for s in shards]
 
-    outputs: dict[str, Path] = {}
-    try:
+        outputs: dict[str, Path] = {}
         for kind in (k for k, on in (("dense", cfg.dense), ("keyframe", cfg.keyframe)) if on):
             roots = [shards_dir / r.name / kind for r in ordered if r.episodes.get(kind, 0) > 0]
             target = out / kind

@@ -504,12 +504,8 @@ class VirtualViewRenderer(nn.Module):
         M, ws = B * N, _workspace(dev)
         win = self._batch_keys(pts, ignore, mode, ws)[1:].view(B * V, S * S)
         out = torch.empty((B, V, C + 4, S, S), device=dev)
-        # Winners' xyz and features: one gather for the batch from channel-major attributes whose column M (the
-        # index an empty pixel unpacks to) is zero.
-        src = ws.get("src", (C, M + 1), torch.float32, dev)
-        src[:3, :M] = points_cube.reshape(M, 3).t()
-        src[3:, :M] = feats.reshape(M, C - 3).t()
-        src[:, M] = 0
+        # Winners' xyz and features: one gather for the batch (flat indices; column M is the empty pixel's zeros).
+        src = self._src_table(points_cube.reshape(M, 3), feats.reshape(M, C - 3), ws)
         index = torch.bitwise_and(win, _LOW32, out=ws.get("index_out", (B * V, S * S), torch.int64, dev))
         out[:, :, :C] = src.index_select(1, index.view(-1)).view(C, B, V, S, S).permute(1, 2, 0, 3, 4)
         self._write_depth(win, out[:, :, C], ws)
@@ -518,8 +514,8 @@ class VirtualViewRenderer(nn.Module):
 
     @staticmethod
     def _src_table(points: Tensor, feats: Tensor, ws: _Workspace) -> Tensor:
-        """Channel-major xyz + features ``(C, N + 1)`` of one sample's points (memory of ``ws``); column N (the
-        index an empty pixel unpacks to) is zero."""
+        """Channel-major xyz + features ``(C, N + 1)`` of ``N`` points (one sample's, or a flattened batch's; memory
+        of ``ws``); column N (the index an empty pixel unpacks to) is zero."""
         N, C = points.shape[0], 3 + feats.shape[-1]
         src = ws.get("src", (C, N + 1), torch.float32, points.device)
         src[:3, :N] = points.t()
