@@ -3,11 +3,14 @@
 Baseline: robosuite env with camera observations every step (``use_camera_obs=True``, RGB-D, default render
 settings), the same scripted expert, every step's observation written frame by frame (``add_frame``) into a dense
 LeRobot dataset with the same features and encoders. sigma: record without rendering, replay states, render only
-stored frames with the fast settings. Every run goes in a fresh process, so its peak resident memory
+stored frames with the fast settings; with ``sigma-data collect``'s defaults (one worker: render threads = cores,
+the next episode recorded while this one renders and writes). "render ms/frame" is the render threads' time per
+frame (threads share the cores, so it is longer than a frame rendered alone); "write/render" is the writing
+thread's own time (not waiting for frames) over it. Every run goes in a fresh process, so its peak resident memory
 (``ru_maxrss`` of the process and of its largest child) is its own; each clock starts after the same imports
 and includes building the env(s), creating and finalizing the datasets (sigma: and merging the shards). The
-scaling rows (1 worker vs ``--workers``) collect twice as many episodes in shards of 10, as ``sigma-data collect``
-does by default. All measured in the same run; prints a Markdown table of ratios and writes it to
+scaling rows (1 worker; 1 worker with one render thread, which works in turn like each of the workers of the
+last row; ``--workers``) collect twice as many episodes in shards of 10, as ``sigma-data collect`` does by default. All measured in the same run; prints a Markdown table of ratios and writes it to
 ``benchmarks/results/collect.md`` (+ ``.json``).
 
     python -m benchmarks.bench_collect                      # lift, 4 episodes (8 scaling), 4 RGB-D cameras at 128x128
@@ -279,13 +282,24 @@ def main() -> None:
     n, size = cfg.scaling_episodes or 2 * cfg.episodes, cfg.shard_size
     scaling = {"dense": False, "episodes": n, "shard_size": size}
     one = sigma(f"sigma keyframe, {n} episodes in shards of {size}, 1 worker", **scaling)
+    # Like for like with the workers of the next row, which have one core each and so work in turn.
+    one_seq = sigma(
+        f"sigma keyframe, {n} episodes in shards of {size}, 1 worker, `--render_threads 1`",
+        render_threads=1,
+        **scaling,
+    )
     many = sigma(
         f"sigma keyframe, {n} episodes in shards of {size}, {cfg.workers} workers",
         workers=cfg.workers,
         **scaling,
     )
-    many["notes"] = (
-        f"{many['kept'] / many['wall'] / (one['kept'] / one['wall']):.2f}x vs 1 worker; " + many["notes"]
+
+    def rate(r: dict) -> float:
+        return r["kept"] / r["wall"]
+
+    runs[-1]["notes"] = (  # the row (a copy of `many`)
+        f"{rate(many) / rate(one):.2f}x 1 worker, {rate(many) / rate(one_seq):.2f}x 1 worker with 1 render "
+        "thread; " + many["notes"]
     )
 
     lines = [

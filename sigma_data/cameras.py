@@ -43,29 +43,42 @@ class RenderConfig:
     max_depth: float = 3.0
 
 
-def camera_intrinsics(sim: Any, camera: str, height: int, width: int) -> np.ndarray:
-    """Pinhole K (3, 3) float64 of a MuJoCo camera for an ``height`` x ``width`` image (robosuite convention)."""
-    cam_id = sim.model.camera_name2id(camera)
-    fovy = np.deg2rad(float(sim.model.cam_fovy[cam_id]))
+def camera_intrinsics(model: Any, cam_id: int, height: int, width: int) -> np.ndarray:
+    """Pinhole K (3, 3) float64 of MuJoCo camera ``cam_id`` for an ``height`` x ``width`` image (robosuite's)."""
+    fovy = np.deg2rad(float(model.cam_fovy[cam_id]))
     f = 0.5 * height / np.tan(fovy / 2)
     return np.array([[f, 0.0, width / 2], [0.0, f, height / 2], [0.0, 0.0, 1.0]])
 
 
-def camera_extrinsics(sim: Any, camera: str) -> np.ndarray:
-    """Camera-to-world (4, 4) float64 in OpenCV axes at the current ``sim.data`` (call ``forward()`` first)."""
-    cam_id = sim.model.camera_name2id(camera)
+def camera_extrinsics(data: Any, cam_id: int) -> np.ndarray:
+    """Camera-to-world (4, 4) float64 in OpenCV axes at ``data`` (after ``mj_forward``)."""
     pose = np.eye(4)
-    pose[:3, :3] = np.asarray(sim.data.cam_xmat[cam_id]).reshape(3, 3)
-    pose[:3, 3] = sim.data.cam_xpos[cam_id]
+    pose[:3, :3] = np.asarray(data.cam_xmat[cam_id]).reshape(3, 3)
+    pose[:3, 3] = data.cam_xpos[cam_id]
     return pose @ _MUJOCO_TO_OPENCV
 
 
-def zbuffer_to_metres(sim: Any, zbuffer: np.ndarray) -> np.ndarray:
+def zbuffer_to_metres(model: Any, zbuffer: np.ndarray) -> np.ndarray:
     """OpenGL z-buffer values in [0, 1] -> metric z-depth, metres (robosuite's ``get_real_depth_map``)."""
-    extent = sim.model.stat.extent
-    near = sim.model.vis.map.znear * extent
-    far = sim.model.vis.map.zfar * extent
+    extent = model.stat.extent
+    near = model.vis.map.znear * extent
+    far = model.vis.map.zfar * extent
     return near / (1.0 - zbuffer * (1.0 - near / far))
+
+
+def camera_frame(
+    model: Any, data: Any, cam_id: int, rgb: np.ndarray, zbuffer: np.ndarray, max_depth: float
+) -> CameraFrame:
+    """A :class:`CameraFrame` from MuJoCo's bottom-up ``rgb`` (H, W, 3) and ``zbuffer`` (H, W) of camera
+    ``cam_id``, with calibration at ``data``."""
+    h, w = zbuffer.shape
+    depth = zbuffer_to_metres(model, zbuffer[::-1].astype(np.float64))
+    return CameraFrame(
+        rgb=np.ascontiguousarray(rgb[::-1]),
+        depth=np.minimum(depth, max_depth).astype(np.float32),
+        intrinsics=camera_intrinsics(model, cam_id, h, w).astype(np.float32),
+        extrinsics=camera_extrinsics(data, cam_id).astype(np.float32),
+    )
 
 
 def backproject(depth: np.ndarray, intrinsics: np.ndarray, extrinsics: np.ndarray) -> np.ndarray:
@@ -146,19 +159,17 @@ class CameraRig:
     def render(self) -> CameraViews:
         """Render every camera at the current ``sim.data`` (``forward()`` is called first)."""
         sim = self.env.sim
-        self._ensure_context()
+        # Current in this thread: robosuite renders into whatever context is current, and closing another env
+        # releases it (eglReleaseThread).
+        self._ensure_context().gl_ctx.make_current()
         sim.forward()
         h, w = self.config.height, self.config.width
+        model, data = sim.model._model, sim.data._data
         views: CameraViews = {}
         for cam in self.config.cameras:
             rgb, zbuf = sim.render(camera_name=cam, width=w, height=h, depth=True)
-            depth = zbuffer_to_metres(sim, zbuf[::-1].astype(np.float64))
-            views[cam] = CameraFrame(
-                rgb=np.ascontiguousarray(rgb[::-1]),
-                depth=np.minimum(depth, self.config.max_depth).astype(np.float32),
-                intrinsics=camera_intrinsics(sim, cam, h, w).astype(np.float32),
-                extrinsics=camera_extrinsics(sim, cam).astype(np.float32),
-            )
+            cam_id = sim.model.camera_name2id(cam)
+            views[cam] = camera_frame(model, data, cam_id, rgb, zbuf, self.config.max_depth)
         return views
 
     def render_state(self, flat_state: np.ndarray) -> CameraViews:
@@ -171,11 +182,11 @@ class CameraRig:
         sim = self.env.sim
         out = {}
         for cam in self.config.cameras:
-            body = sim.model.cam_bodyid[sim.model.camera_name2id(cam)]
-            if is_static_body(sim.model, body):
+            cam_id = sim.model.camera_name2id(cam)
+            if is_static_body(sim.model, sim.model.cam_bodyid[cam_id]):
                 out[cam] = (
-                    camera_intrinsics(sim, cam, self.config.height, self.config.width),
-                    camera_extrinsics(sim, cam),
+                    camera_intrinsics(sim.model, cam_id, self.config.height, self.config.width),
+                    camera_extrinsics(sim.data, cam_id),
                 )
         return out
 

@@ -6,6 +6,12 @@ the episode if the expert gives up or the task's success check fails, else repla
 **only the frames that are written** (every frame for the dense dataset, the decision points for the keyframe
 dataset; a frame both need is rendered once).
 
+A worker with more than one core (``render_threads`` >= 2; by default the cores divided among the workers)
+overlaps three things: the env records episode k + 1 in a background thread, the frames of episode k render
+ahead of the writers in ``render_threads`` threads with their own GL contexts (:mod:`sigma_data.replay_render`,
+bit-identical to rendering them one by one), and the writers write them (LeRobot's video encoders run in threads
+of their own). A worker with one core does them in turn.
+
 Scale and robustness:
 
 * Work is cut into shards of seeds (``shard_size`` seeds of one task variation). Each shard is written by one
@@ -28,12 +34,13 @@ import contextlib
 import hashlib
 import json
 import multiprocessing as mp
+import os
 import queue
 import shutil
 import threading
 import time
 from collections import deque
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 from concurrent.futures import ProcessPoolExecutor
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
@@ -42,8 +49,9 @@ from typing import Any
 import numpy as np
 
 from sigma_data.cameras import DEFAULT_CAMERAS, CameraRig, RenderConfig
-from sigma_data.episode import CameraViews, Episode
+from sigma_data.episode import Episode
 from sigma_data.keyframes import compare_keyframes, discover_keyframes
+from sigma_data.replay_render import RenderedFrames, ReplayRenderer, SceneSnapshot
 from sigma_data.writers import SIDECAR, DatasetLayout, DenseWriter, KeyframeWriter, SigmaWriter
 
 MARKER = "shard.json"
@@ -88,6 +96,10 @@ class CollectConfig:
     max_depth: float = 3.0
     # Worker processes (each writes its own shards).
     workers: int = 1
+    # Render threads per worker process. With 2 or more, the env records the next episode while this one's frames
+    # render ahead of the writers in that many threads (same images); 1 renders each frame in the writing thread
+    # when it is asked for, one episode at a time; 0 = the CPU cores available divided among the workers.
+    render_threads: int = 0
     # Seeds per shard (the unit of resume: a finished shard that validates is reused).
     shard_size: int = 10
     # Seed of the random model parameters drawn when an env is built (e.g. Lift's cube size).
@@ -100,6 +112,14 @@ class CollectConfig:
     def __post_init__(self) -> None:
         if self.executor not in ("processes", "datatrove"):
             raise ValueError(f"--executor must be processes or datatrove, got {self.executor!r}")
+        if self.render_threads < 0:
+            raise ValueError(f"--render_threads must be >= 0, got {self.render_threads}")
+
+    def threads_per_worker(self) -> int:
+        """Render threads of each worker process (``render_threads``, or the cores shared among the workers)."""
+        if self.render_threads:
+            return self.render_threads
+        return max(1, len(os.sched_getaffinity(0)) // max(1, self.workers))
 
     def camera_list(self) -> tuple[str, ...]:
         cams = tuple(c.strip() for c in self.cameras.split(",") if c.strip())
@@ -154,7 +174,8 @@ class ShardSpec:
 
 @dataclass
 class ShardResult:
-    """What a shard produced, with timings in seconds (render = replay + render; write = writers minus render)."""
+    """What a shard produced, with timings in seconds (render = replay + render, summed over the render threads;
+    write = the writers' time minus their waits for frames)."""
 
     name: str
     kept: int = 0
@@ -268,8 +289,23 @@ def cached_env(task_name: str, render: RenderConfig, model_seed: int) -> Any:
     return _ENVS[key]
 
 
+_REPLAYS: dict[tuple[int, int], ReplayRenderer] = {}
+
+
+def cached_replay(rig: CameraRig, threads: int) -> ReplayRenderer:
+    """This process's render threads for ``rig``'s env (closed by :func:`close_envs`, before the envs)."""
+    key = (id(rig.env), threads)
+    if key not in _REPLAYS:
+        _REPLAYS[key] = ReplayRenderer(rig, threads)
+    return _REPLAYS[key]
+
+
 def close_envs() -> None:
-    """Close and forget every env :func:`cached_env` built in this process."""
+    """Close and forget every env :func:`cached_env` built in this process (and their render threads)."""
+    while _REPLAYS:
+        _, replay = _REPLAYS.popitem()
+        with contextlib.suppress(Exception):
+            replay.close()
     while _ENVS:
         _, env = _ENVS.popitem()
         with contextlib.suppress(Exception):
@@ -302,29 +338,6 @@ def check_cameras_exist(cfg: CollectConfig, task_names: list[str], reuse: bool) 
 # --------------------------------------------------------------------------------------------------
 # One shard
 # --------------------------------------------------------------------------------------------------
-
-
-class RenderedFrames:
-    """Renders an episode's frames by state replay on demand; keeps the ones requested again later."""
-
-    def __init__(self, episode: Episode, rig: CameraRig, keep: set[int]):
-        if episode.sim_states is None:
-            raise ValueError(f"{episode.name}: no sim states to render")
-        self.episode, self.rig, self.keep = episode, rig, keep
-        self.cache: dict[int, CameraViews] = {}
-        self.seconds = 0.0
-        self.count = 0
-
-    def __call__(self, t: int) -> CameraViews:
-        if t in self.cache:
-            return self.cache[t]
-        start = time.perf_counter()
-        views = self.rig.render_state(self.episode.sim_states[t])
-        self.seconds += time.perf_counter() - start
-        self.count += 1
-        if t in self.keep:
-            self.cache[t] = views
-        return views
 
 
 def _heuristic_vs_expert(ep: Episode) -> tuple[list[int], dict[str, float]]:
@@ -362,13 +375,85 @@ def _provenance(cfg: CollectConfig, shards_tasks: list[str]) -> dict[str, Any]:
     }
 
 
+@dataclass
+class _Recording:
+    """One seed's expert run: the episode and the scene it was recorded in, or why it was dropped."""
+
+    seed: int
+    seconds: float
+    steps: int
+    episode: Episode | None = None
+    snapshot: SceneSnapshot | None = None
+    reason: str = ""
+
+
+def _record(
+    env: Any, task: Any, variation: Any, spec: ShardSpec, seed: int, replay: ReplayRenderer | None
+) -> _Recording:
+    """Reset ``env`` to ``seed``, run the expert without rendering and check success (and, for ``replay``, take
+    the snapshot of the scene its frames render from)."""
+    from sigma_data.experts.base import ExpertFailure
+    from sigma_data.record import EpisodeRecorder
+    from sigma_data.tasks import reset_env
+
+    start = time.perf_counter()
+    reset_env(env, task, variation, seed)
+    recorder = EpisodeRecorder(env)
+    reason = ""
+    try:
+        task.expert(recorder, variation, np.random.default_rng(seed))
+        if not task.success(env, variation):
+            reason = "success check failed at the end of the expert"
+    except ExpertFailure as exc:
+        reason = f"expert failure: {exc}"
+    if reason or recorder.num_steps == 0:
+        return _Recording(seed, time.perf_counter() - start, recorder.num_steps, reason=reason or "no steps")
+    ep = recorder.to_episode(
+        spec.task, spec.variation, variation.instruction, seed, provenance={"expert": spec.task}
+    )
+    snapshot = replay.snapshot() if replay is not None else None
+    return _Recording(seed, time.perf_counter() - start, recorder.num_steps, ep, snapshot)
+
+
+def _ahead(items: Iterator[Any], depth: int = 1) -> Iterator[Any]:
+    """Yield ``items``, produced in a background thread at most ``depth`` items ahead of the consumer. An error
+    of the producer is raised here; when the consumer stops early the producer stops after its current item."""
+    buffer: queue.Queue = queue.Queue(maxsize=depth)
+    stop = threading.Event()
+
+    def produce() -> None:
+        try:
+            for item in items:
+                buffer.put((True, item))
+                if stop.is_set():
+                    return
+            buffer.put((False, None))
+        except BaseException as exc:  # re-raised in the consumer
+            buffer.put((False, exc))
+
+    producer = threading.Thread(target=produce, name="sigma-record", daemon=True)
+    producer.start()
+    try:
+        while True:
+            more, item = buffer.get()
+            if not more:
+                if item is not None:
+                    raise item
+                return
+            yield item
+    finally:
+        stop.set()
+        while producer.is_alive():  # unblock a producer waiting to put
+            with contextlib.suppress(queue.Empty):
+                buffer.get(timeout=0.1)
+        producer.join()
+
+
 def collect_shard(
     spec: ShardSpec, cfg: CollectConfig, shard_dir: Path, on_episode: Callable[[], None] | None = None
 ) -> ShardResult:
     """Record, filter, render and write one shard into ``shard_dir`` (replaced if present); writes the marker."""
-    from sigma_data.experts.base import ExpertFailure
-    from sigma_data.record import EpisodeRecorder
-    from sigma_data.tasks import get_task, get_variation, reset_env
+    from sigma_data.tasks import get_task, get_variation
 
     start_all = time.perf_counter()
     if shard_dir.exists():
@@ -380,6 +465,10 @@ def collect_shard(
     result = ShardResult(spec.name, fingerprint=cfg.fingerprint())
     env = cached_env(spec.task, render, cfg.model_seed)  # stays open for the task's next shard
     rig = CameraRig(env, render)
+    # A worker with cores to spare overlaps recording, rendering and writing; one with a single core does them in
+    # turn (threads there only add GIL hand-offs and a scene copy per episode: measured slower with 2 workers).
+    threads = cfg.threads_per_worker()
+    replay = cached_replay(rig, threads) if threads > 1 else None
     layout = DatasetLayout(render.cameras, render.height, render.width)
     # Static K/E go into the feature info only when one task (one scene) fills the dataset: shards of
     # different scenes would disagree and LeRobot's merge requires identical features.
@@ -410,40 +499,39 @@ def collect_shard(
                     **common,
                 )
             )
-        for seed in spec.seeds:
-            t0 = time.perf_counter()
-            reset_env(env, task, variation, seed)
-            recorder = EpisodeRecorder(env)
-            reason = ""
-            try:
-                task.expert(recorder, variation, np.random.default_rng(seed))
-                if not task.success(env, variation):
-                    reason = "success check failed at the end of the expert"
-            except ExpertFailure as exc:
-                reason = f"expert failure: {exc}"
-            result.record_s += time.perf_counter() - t0
-            if reason or recorder.num_steps == 0:
-                result.dropped.append(
-                    {"seed": seed, "steps": recorder.num_steps, "reason": reason or "no steps"}
-                )
+        # With render threads the env records episode k + 1 in a background thread while this thread writes
+        # episode k (its frames render in the replay threads from a snapshot of the scene taken right after it was
+        # recorded). Closed first on the way out: the recording thread stops before the writers finalize.
+        recordings: Iterator[_Recording] = (
+            _record(env, task, variation, spec, seed, replay) for seed in spec.seeds
+        )
+        if replay is not None:
+            recordings = stack.enter_context(contextlib.closing(_ahead(recordings)))
+        for rec in recordings:
+            result.record_s += rec.seconds
+            if rec.episode is None:
+                result.dropped.append({"seed": rec.seed, "steps": rec.steps, "reason": rec.reason})
                 if on_episode:
                     on_episode()
                 continue
-            ep = recorder.to_episode(
-                spec.task, spec.variation, variation.instruction, seed, provenance={"expert": spec.task}
-            )
+            ep = rec.episode
             heuristic, stats = _heuristic_vs_expert(ep)
             ep.provenance["heuristic_keyframes"] = heuristic
             for k, v in stats.items():
                 result.heuristic[k] = result.heuristic.get(k, 0.0) + v
 
-            needed = [set(w.frame_indices(ep)) for w in writers.values()]
-            shared = set.intersection(*needed) if len(needed) > 1 else set()
-            frames = RenderedFrames(ep, rig, keep=shared)
+            needed = [w.frame_indices(ep) for w in writers.values()]
+            shared = set.intersection(*map(set, needed)) if len(needed) > 1 else set()
+            order = [
+                t for frames_of_writer in needed for t in frames_of_writer
+            ]  # the writers ask in this order
             t1 = time.perf_counter()
-            for kind, writer in writers.items():
-                result.episodes[kind] = result.episodes.get(kind, 0) + writer.add_episode(ep, frames)
-            result.write_s += time.perf_counter() - t1 - frames.seconds
+            with RenderedFrames(
+                ep, rig, keep=shared, order=order, replay=replay, snapshot=rec.snapshot
+            ) as frames:
+                for kind, writer in writers.items():
+                    result.episodes[kind] = result.episodes.get(kind, 0) + writer.add_episode(ep, frames)
+            result.write_s += time.perf_counter() - t1 - frames.waited
             result.render_s += frames.seconds
             result.rendered_frames += frames.count
             result.kept += 1

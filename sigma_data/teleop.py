@@ -363,7 +363,7 @@ def record_teleop(
     cfg: TeleopConfig, device: TeleopSource | None = None, events: EventSource | None = None
 ) -> tuple[ImportSummary, list[EpisodeOutcome]]:
     """Run a teleoperation session and write the kept episodes; devices default to ``cfg.device`` + keys."""
-    from sigma_data.collect import RenderedFrames
+    from sigma_data.replay_render import RenderedFrames
     from sigma_data.tasks import get_task, get_variation, make_env
 
     task = get_task(cfg.task)

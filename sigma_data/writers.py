@@ -21,6 +21,7 @@ from __future__ import annotations
 import json
 import os
 import shutil
+import time
 from collections.abc import Callable, Iterator, Mapping, Sequence
 from contextlib import contextmanager
 from dataclasses import asdict, dataclass
@@ -58,6 +59,8 @@ CONVENTIONS = {
 
 ViewsFn = Callable[[int], CameraViews]
 StaticCalibration = Mapping[str, tuple[np.ndarray, np.ndarray]]
+# Frames a camera's video encoder may fall behind before the writer waits for it.
+ENCODER_BACKLOG = 32
 
 
 @dataclass(frozen=True)
@@ -227,6 +230,7 @@ class SigmaWriter:
             depth_encoder=depth_encoder_config(depth_range),
             image_writer_threads=image_writer_threads,
             video_backend="pyav",  # read-back decoder; torchcodec cannot load here (lerobot_notes §6)
+            encoder_queue_maxsize=0,  # unbounded: see _wait_for_encoders
         )
         self.provenance: dict[str, Any] = {
             "kind": self.kind,
@@ -294,7 +298,25 @@ class SigmaWriter:
         return len(self.episodes) - before
 
     def _add_frame(self, values: dict[str, Any], episode: Episode) -> None:
+        self._wait_for_encoders()
         self.dataset.add_frame({**values, "task": episode.instruction})
+
+    def _wait_for_encoders(self) -> None:
+        """Back-pressure for LeRobot's streaming video encoder.
+
+        Its per-camera frame queues drop a frame (a warning, and a video one frame shorter than its episode)
+        when a queue stays full for 0.1 s, which happens when frames come faster than the encoders' share of
+        the CPU. The queues are unbounded here (``encoder_queue_maxsize=0``) and this waits while any camera
+        is ``ENCODER_BACKLOG`` frames behind, so nothing is dropped and memory stays bounded. An encoder thread
+        that died ends the wait (LeRobot's ``add_frame`` then raises its error).
+        """
+        encoder = getattr(getattr(self.dataset, "writer", None), "_streaming_encoder", None)
+        queues = getattr(encoder, "_frame_queues", None)
+        if not queues:
+            return
+        threads = encoder._threads
+        while any(q.qsize() >= ENCODER_BACKLOG and threads[k].is_alive() for k, q in queues.items()):
+            time.sleep(0.002)
 
     def _save_episode(self, episode: Episode, frames: Sequence[int], **extra: Any) -> None:
         with fast_fingerprints():

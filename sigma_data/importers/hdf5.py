@@ -384,7 +384,7 @@ def _convert_demo(
     old context that outlives :func:`load_demo_model` (and is garbage-collected later) corrupts the new one's
     renders (NaN depth). Freed here, the old context goes with its scene, before the next one is built.
     """
-    from sigma_data.collect import RenderedFrames
+    from sigma_data.replay_render import RenderedFrames
 
     render = cfg.render_config()
     load_demo_model(env, demo, source.path, render.cameras)

@@ -139,6 +139,15 @@ def test_bad_names_give_clear_errors(tmp_path):
         collect(replace(tiny(tmp_path), cameras="agentview,nocam"))
     assert cli_main(["collect", "--tasks=lfit", f"--output_dir={tmp_path}"]) == 1
     assert cli_main(["frobnicate"]) == 2
+    with pytest.raises(ValueError, match="render_threads"):
+        replace(tiny(tmp_path), render_threads=-1)
+
+
+def test_render_threads_share_the_cores_among_workers(tmp_path):
+    cores = len(os.sched_getaffinity(0))
+    assert replace(tiny(tmp_path), render_threads=3, workers=2).threads_per_worker() == 3
+    assert replace(tiny(tmp_path), workers=1).threads_per_worker() == cores
+    assert replace(tiny(tmp_path), workers=2 * cores).threads_per_worker() == 1
 
 
 @pytest.mark.skipif(importlib.util.find_spec("datatrove") is None, reason="optional dependency datatrove")
@@ -177,3 +186,30 @@ def test_merge_prints_no_per_file_bars(first_run, tmp_path, capfd):
     err = capfd.readouterr().err
     assert "Copy data and videos" in err  # LeRobot's one bar for the merge stays
     assert "Generating train split" not in err and "Map" not in err, err[-2000:]
+
+
+def test_recording_ahead_keeps_order_raises_and_stops_with_its_consumer():
+    from sigma_data.collect import _ahead
+
+    assert list(_ahead(iter(range(5)))) == [0, 1, 2, 3, 4]
+
+    def failing():
+        yield 1
+        raise ValueError("expert crashed")
+
+    items = _ahead(failing())
+    assert next(items) == 1
+    with pytest.raises(ValueError, match="expert crashed"):
+        next(items)
+
+    produced = []
+
+    def many():
+        for i in range(100):
+            produced.append(i)
+            yield i
+
+    items = _ahead(many(), depth=1)
+    assert next(items) == 0
+    items.close()  # the consumer stops (e.g. a writer failed): the producer ends after its current item
+    assert len(produced) <= 3

@@ -177,3 +177,46 @@ def test_fast_fingerprints_write_the_same_data_and_stay_deterministic(tmp_path, 
     stock, stock_fingerprint = write(root, fast=False)
     assert fast.equals(again) and fingerprint == fingerprint_again
     assert fast.equals(stock) and fingerprint != stock_fingerprint  # only the hash function differs
+
+
+def test_slow_video_encoders_drop_no_frames(tmp_path, monkeypatch):
+    """LeRobot drops a frame when an encoder queue stays full (30 frames) for 0.1 s; the writer waits for its
+    encoders instead, so every video has as many frames as its episode even when encoding is far slower."""
+    import time
+
+    import av
+    from lerobot.datasets import video_utils
+
+    quantize = video_utils.quantize_depth
+
+    def slow_quantize(*args, **kwargs):
+        time.sleep(0.12)  # longer than the 0.1 s LeRobot waits on a full queue before it drops the frame
+        return quantize(*args, **kwargs)
+
+    monkeypatch.setattr(video_utils, "quantize_depth", slow_quantize)
+    n = 48  # > LeRobot's default queue of 30 frames
+    short = make_episode(0)
+    cam = short.images["front"]
+    ep = Episode(
+        task="lift",
+        variation="lift_cube",
+        instruction="long",
+        states=np.resize(short.states, (n, short.states.shape[1])),
+        actions=np.resize(short.actions, (n, short.actions.shape[1])),
+        keyframes=[Keyframe(n - 1, False, False, "final")],
+        images={
+            "front": CameraStream(
+                *(
+                    np.resize(a, (n, *a.shape[1:]))
+                    for a in (cam.rgb, cam.depth, cam.intrinsics, cam.extrinsics)
+                )
+            )
+        },
+    )
+    with DenseWriter(tmp_path / "dense", DatasetLayout(("front",), H, W)) as dense:
+        views, _ = stored(ep)
+        dense.add_episode(ep, views)
+    ds = LeRobotDataset("local/dense", root=tmp_path / "dense", depth_output_unit="m", video_backend="pyav")
+    for key in ("observation.images.front", "observation.images.front_depth"):
+        with av.open(str(ds.root / ds.meta.get_video_file_path(0, key))) as video:
+            assert sum(1 for _ in video.decode(video=0)) == n, key
