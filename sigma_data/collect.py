@@ -52,7 +52,7 @@ from sigma_data.cameras import DEFAULT_CAMERAS, CameraRig, RenderConfig
 from sigma_data.episode import Episode
 from sigma_data.keyframes import compare_keyframes, discover_keyframes
 from sigma_data.replay_render import RenderedFrames, ReplayRenderer, SceneSnapshot
-from sigma_data.writers import SIDECAR, DatasetLayout, DenseWriter, KeyframeWriter, SigmaWriter
+from sigma_data.writers import SIDECAR, DatasetLayout, DenseWriter, KeyframeWriter, SigmaWriter, shared_frames
 
 MARKER = "shard.json"
 DATASETS = ("dense", "keyframe")
@@ -520,14 +520,12 @@ def collect_shard(
             for k, v in stats.items():
                 result.heuristic[k] = result.heuristic.get(k, 0.0) + v
 
-            needed = [w.frame_indices(ep) for w in writers.values()]
-            shared = set.intersection(*map(set, needed)) if len(needed) > 1 else set()
-            order = [
-                t for frames_of_writer in needed for t in frames_of_writer
-            ]  # the writers ask in this order
+            # The frames in the order the writers will ask for them; those several writers ask for render once.
+            order = [t for w in writers.values() for t in w.frame_indices(ep)]
+            keep = shared_frames(writers.values(), ep)
             t1 = time.perf_counter()
             with RenderedFrames(
-                ep, rig, keep=shared, order=order, replay=replay, snapshot=rec.snapshot
+                ep, rig, keep=keep, order=order, replay=replay, snapshot=rec.snapshot
             ) as frames:
                 for kind, writer in writers.items():
                     result.episodes[kind] = result.episodes.get(kind, 0) + writer.add_episode(ep, frames)

@@ -107,14 +107,14 @@ class ReplayRenderer:
     def __init__(self, rig: CameraRig, threads: int = 2):
         if threads < 1:
             raise ValueError(f"threads must be >= 1, got {threads}")
-        context = (
-            rig._ensure_context()
-        )  # the fast settings are on the model before the threads' contexts exist
+        # The fast settings are on the model before the threads' contexts exist.
+        context = rig._ensure_context()
         self.sim = rig.env.sim
         self.model = self.sim.model._model
         self.threads = threads
         self._queue: queue.SimpleQueue = queue.SimpleQueue()
         started: queue.SimpleQueue = queue.SimpleQueue()
+        # One copy of the options for every thread (mjv_updateScene only reads them).
         settings = (copy.copy(context.vopt), [int(f) for f in context.scn.flags], rig)
         self._workers = [
             threading.Thread(
@@ -132,7 +132,7 @@ class ReplayRenderer:
     def _serve(self, settings: tuple[Any, list[int], CameraRig], started: queue.SimpleQueue) -> None:
         options, flags, rig = settings
         try:
-            renderer = _ThreadRenderer(self.model, copy.copy(options), flags, rig)
+            renderer = _ThreadRenderer(self.model, options, flags, rig)
         except BaseException as exc:  # reported by __init__
             started.put(exc)
             return

@@ -22,7 +22,7 @@ import json
 import os
 import shutil
 import time
-from collections.abc import Callable, Iterator, Mapping, Sequence
+from collections.abc import Callable, Iterable, Iterator, Mapping, Sequence
 from contextlib import contextmanager
 from dataclasses import asdict, dataclass
 from pathlib import Path
@@ -172,6 +172,12 @@ def quiet_video_encoders() -> None:
     import av.logging
 
     av.logging.set_libav_level(av.logging.WARNING)
+
+
+def shared_frames(writers: Iterable[SigmaWriter], episode: Episode) -> set[int]:
+    """Frames of ``episode`` that more than one of ``writers`` asks for (worth caching once rendered)."""
+    needed = [set(w.frame_indices(episode)) for w in writers]
+    return set.intersection(*needed) if len(needed) > 1 else set()
 
 
 def read_sidecar(root: Path) -> dict[str, Any]:

@@ -27,7 +27,14 @@ from typing import Any
 import numpy as np
 
 from sigma_data.episode import CameraViews, Episode
-from sigma_data.writers import DatasetLayout, DenseWriter, KeyframeWriter, SigmaWriter, StaticCalibration
+from sigma_data.writers import (
+    DatasetLayout,
+    DenseWriter,
+    KeyframeWriter,
+    SigmaWriter,
+    StaticCalibration,
+    shared_frames,
+)
 
 REPORT = "import.json"
 
@@ -167,8 +174,7 @@ class DatasetSink:
 
     def shared_frames(self, episode: Episode) -> set[int]:
         """Frames of ``episode`` that more than one open writer asks for (worth caching once rendered)."""
-        needed = [set(w.frame_indices(episode)) for w in self.writers.values()]
-        return set.intersection(*needed) if len(needed) > 1 else set()
+        return shared_frames(self.writers.values(), episode)
 
     def add(
         self,

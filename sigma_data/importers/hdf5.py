@@ -395,8 +395,7 @@ def _convert_demo(
         dedup=cfg.dedup_keyframes,
         provenance={"importer": "hdf5", "file": str(source.path), "demo": demo.name},
     )
-    rig = CameraRig(env, render)
-    env.sim._render_context_offscreen.gl_ctx.make_current()
+    rig = CameraRig(env, render)  # its renders make this scene's context current
     sink.open(layout, rig.static_calibration())
     sink.add(ep, RenderedFrames(ep, rig, keep=sink.shared_frames(ep)), layout)
 
