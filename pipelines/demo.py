@@ -2,7 +2,9 @@
 
 Stages (each shows progress; the run ends with a short table and the paths it wrote):
 
-1. **collect** a small multi-task dataset with the scripted experts (dense and keyframe LeRobot datasets);
+1. **collect** a multi-task keyframe dataset with the scripted experts (``episodes`` per variation: keyframe-only
+   collection renders only the decision points, so 30 per variation take about a minute), and a few dense episodes
+   per variation (``dense_episodes``: every control step, for the episode viewer and stock LeRobot policies);
 2. **validate** both against the data contract (``sigma-data validate``);
 3. **train** the ``small`` Σ-agent policy with the stock ``lerobot-train --policy.type=sigma``;
 4. **evaluate** it closed-loop in robosuite (``sigma-eval``), seeds disjoint from the training seeds;
@@ -37,11 +39,14 @@ class DemoConfig:
     quick: bool = False
     # Tasks collected and evaluated ("lift", "stack", ...; see sigma_data.tasks).
     tasks: list[str] = field(default_factory=lambda: ["lift", "stack"])
-    # Seeds collected per variation, and evaluation episodes per variation.
-    episodes: int = 8
-    eval_episodes: int = 4
+    # Seeds collected per variation for the keyframe (training) dataset, and for the dense dataset.
+    episodes: int = 30
+    dense_episodes: int = 2
+    # Evaluation episodes per variation (held-out seeds), and keyframes a rollout may take.
+    eval_episodes: int = 10
+    max_keyframes: int = 12
     # Training steps and batch size of the small policy.
-    steps: int = 800
+    steps: int = 1500
     batch_size: int = 8
     cameras: list[str] = field(
         default_factory=lambda: ["agentview", "frontview", "birdview", "robot0_eye_in_hand"]
@@ -52,7 +57,7 @@ class DemoConfig:
     def __post_init__(self) -> None:
         if self.quick:
             self.tasks = ["lift"]
-            self.episodes, self.eval_episodes = 2, 1
+            self.episodes, self.dense_episodes, self.eval_episodes = 2, 1, 1
             self.steps, self.batch_size = 4, 2
             self.cameras = ["agentview", "robot0_eye_in_hand"]
             self.image_size = 32
@@ -71,25 +76,34 @@ class StageTimes:
 
 
 def collect_stage(cfg: DemoConfig) -> dict[str, Path]:
+    """Keyframe dataset (``episodes`` per variation) and dense dataset (``dense_episodes``, same first seeds)."""
     from sigma_data.collect import CollectConfig, collect
 
-    summary = collect(
-        CollectConfig(
-            tasks=",".join(cfg.tasks),
-            episodes=cfg.episodes,
-            output_dir=cfg.output_dir / "data",
-            repo_id="local/sigma_demo",
-            cameras=",".join(cfg.cameras),
-            height=cfg.image_size,
-            width=cfg.image_size,
-            workers=cfg.workers,
-            shard_size=max(1, cfg.episodes // cfg.workers),
+    outputs = {}
+    for kind, episodes, where in (
+        ("keyframe", cfg.episodes, "data"),
+        ("dense", min(cfg.dense_episodes, cfg.episodes), "data_dense"),
+    ):
+        summary = collect(
+            CollectConfig(
+                tasks=",".join(cfg.tasks),
+                episodes=episodes,
+                output_dir=cfg.output_dir / where,
+                repo_id="local/sigma_demo",
+                cameras=",".join(cfg.cameras),
+                height=cfg.image_size,
+                width=cfg.image_size,
+                dense=kind == "dense",
+                keyframe=kind == "keyframe",
+                workers=cfg.workers,
+                shard_size=max(1, -(-episodes // cfg.workers)),
+            )
         )
-    )
-    print(summary.line())
-    if summary.kept == 0:
-        raise RuntimeError("the experts produced no successful episode; nothing to train on")
-    return dict(summary.outputs)
+        print(summary.line())
+        if summary.kept == 0:
+            raise RuntimeError("the experts produced no successful episode; nothing to train on")
+        outputs[kind] = summary.outputs[kind]
+    return outputs
 
 
 def validate_stage(outputs: dict[str, Path]) -> dict[str, int]:
@@ -128,7 +142,7 @@ def eval_stage(cfg: DemoConfig, checkpoint: Path, keyframe_root: Path) -> dict:
             tasks=cfg.tasks,
             episodes=cfg.eval_episodes,
             train_dataset=keyframe_root,
-            max_keyframes=8,
+            max_keyframes=cfg.max_keyframes,
             workers=cfg.workers,
             output_dir=cfg.output_dir / "eval",
             rerun=True,

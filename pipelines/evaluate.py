@@ -26,7 +26,7 @@ import multiprocessing as mp
 import os
 import sys
 import time
-from collections import defaultdict
+from collections import Counter, defaultdict
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any
@@ -80,6 +80,49 @@ class EpisodeResult:
     seconds: float
     recording: str | None = None
     error: str | None = None
+    # Why a failed episode failed (see :func:`failure_reason`); None on success.
+    failure: str | None = None
+    # One entry per keyframe taken: the action, how the arm move ended, the finger gap after it.
+    trace: list[dict] = field(default_factory=list)
+
+
+# Panda fingers: each joint travels 0..0.04 m; a closed gripper whose gap is below this holds nothing.
+EMPTY_GRIP_GAP_M = 0.01
+# Two consecutive keyframes this close, with the same gripper command, make no progress: the policy is stuck.
+REPEAT_TOLERANCE_M = 0.01
+
+
+def failure_reason(result: EpisodeResult, max_keyframes: int) -> str | None:
+    """A short, task-independent reason for a failed episode, from its keyframe trace.
+
+    ``error: ...`` (an exception), ``grasp missed at keyframe k`` (the gripper closed on nothing: finger gap
+    below 1 cm), ``keyframe k not reached (stalled|budget)`` (the executor could not get the arm there),
+    ``dropped at keyframe k`` (something was held, then the gripper opened away from success), ``repeats
+    keyframe k`` (the next keyframe is the same pose and gripper command: stuck), and
+    ``timeout after N keyframes`` (every move converged but the task never succeeded).
+    """
+    if result.success:
+        return None
+    if result.error is not None:
+        return f"error: {result.error.splitlines()[0][:120]}"
+    held = False
+    for step in result.trace:
+        k = step["keyframe"]
+        if step["closed_now"] and step["finger_gap_m"] < EMPTY_GRIP_GAP_M:
+            return f"grasp missed at keyframe {k}"
+        held = held or step["closed_now"]
+        if held and step["opened_now"]:
+            return f"dropped at keyframe {k}"
+    for prev, step in zip(result.trace, result.trace[1:], strict=False):
+        same_place = math.dist(prev["action"][:3], step["action"][:3]) < REPEAT_TOLERANCE_M
+        if same_place and prev["action"][7] == step["action"][7]:
+            return f"repeats keyframe {prev['keyframe']}"
+    for step in result.trace:
+        if step["arm_status"] != "converged":
+            return f"keyframe {step['keyframe']} not reached ({step['arm_status']})"
+    return f"timeout after {len(result.trace)} keyframes" + (
+        "" if len(result.trace) >= max_keyframes else " (stopped)"
+    )
 
 
 def wilson_interval(successes: int, n: int, z: float = 1.96) -> tuple[float, float]:
@@ -191,7 +234,9 @@ class _Worker:
             rec, recording = self._open_recording(job)
         obs, _ = env.reset(seed=job.seed)
         self.policy.reset()
-        success, steps, k = False, 0, 0
+        success, steps, k, error = False, 0, 0, None
+        trace: list[dict] = []
+        was_open = True
         try:
             for k in range(1, self.cfg.max_keyframes + 1):
                 action = self.act(obs, env.task_description)
@@ -200,28 +245,42 @@ class _Worker:
                 obs, _, terminated, _, info = env.step(action)
                 steps += info["control_steps"]
                 success = bool(info["is_success"])
+                now_open = bool(action[7] > 0.5)
+                fingers = obs["agent_pos"][8:10]
+                trace.append(
+                    {
+                        "keyframe": k,
+                        "action": [round(float(a), 4) for a in action],
+                        "arm_status": info["arm_status"],
+                        "closed_now": was_open and not now_open,
+                        "opened_now": now_open and not was_open,
+                        "finger_gap_m": round(float(abs(fingers[0]) + abs(fingers[1])), 4),
+                    }
+                )
+                was_open = now_open
                 if terminated:
                     break
         except Exception as exc:  # a bad action or a simulator error fails this episode, not the run
             logger.exception("episode %s failed", job)
-            return EpisodeResult(
-                job.task,
-                job.variation,
-                job.seed,
-                False,
-                k,
-                steps,
-                time.perf_counter() - start,
-                recording,
-                repr(exc),
-            )
+            success, error = False, repr(exc)
         finally:
             if rec is not None:
                 rec.flush()
                 rec.disconnect()
-        return EpisodeResult(
-            job.task, job.variation, job.seed, success, k, steps, time.perf_counter() - start, recording
+        result = EpisodeResult(
+            job.task,
+            job.variation,
+            job.seed,
+            success,
+            k,
+            steps,
+            time.perf_counter() - start,
+            recording,
+            error,
+            trace=trace,
         )
+        result.failure = failure_reason(result, self.cfg.max_keyframes)
+        return result
 
     def _open_recording(self, job: Job):
         from pipelines.viz.blueprints import policy_blueprint
@@ -287,6 +346,7 @@ def summarise(results: list[EpisodeResult], cfg: EvalConfig) -> dict:
                 "mean_keyframes": sum(r.keyframes for r in rs) / n,
                 "seeds": sorted(r.seed for r in rs),
                 "errors": sum(r.error is not None for r in rs),
+                "failures": dict(Counter(_failure_kind(r.failure) for r in rs if r.failure)),
             }
         )
     mean = sum(r["success_rate"] for r in rows) / len(rows) if rows else 0.0
@@ -299,10 +359,18 @@ def summarise(results: list[EpisodeResult], cfg: EvalConfig) -> dict:
     }
 
 
+FAILURE_KINDS = ("error", "grasp missed", "dropped", "repeats", "not reached", "timeout")
+
+
+def _failure_kind(reason: str) -> str:
+    """``grasp missed at keyframe 3`` -> ``grasp missed``: the kind of a :func:`failure_reason`."""
+    return next((kind for kind in FAILURE_KINDS if kind in reason), reason)
+
+
 def markdown_table(summary: dict) -> str:
     lines = [
-        "| task | variation | success | 95% CI | episodes | mean keyframes | errors | seeds |",
-        "|---|---|---|---|---|---|---|---|",
+        "| task | variation | success | 95% CI | episodes | mean keyframes | errors | failures | seeds |",
+        "|---|---|---|---|---|---|---|---|---|",
     ]
     for r in summary["variations"]:
         seeds = r["seeds"]
@@ -310,10 +378,14 @@ def markdown_table(summary: dict) -> str:
         lines.append(
             f"| {r['task']} | {r['variation']} | {r['successes']}/{r['episodes']} ({100 * r['success_rate']:.0f}%) "
             f"| {100 * r['ci95'][0]:.0f}–{100 * r['ci95'][1]:.0f}% | {r['episodes']} | {r['mean_keyframes']:.1f} "
-            f"| {r['errors']} | {seed_txt} |"
+            f"| {r['errors']} | {_failures_text(r.get('failures', {}))} | {seed_txt} |"
         )
-    lines.append(f"| **mean** | | **{100 * summary['mean_success']:.1f}%** | | | | | |")
+    lines.append(f"| **mean** | | **{100 * summary['mean_success']:.1f}%** | | | | | | |")
     return "\n".join(lines)
+
+
+def _failures_text(failures: dict[str, int]) -> str:
+    return ", ".join(f"{kind} {n}" for kind, n in sorted(failures.items(), key=lambda kv: -kv[1])) or "-"
 
 
 def run_eval(cfg: EvalConfig) -> dict:

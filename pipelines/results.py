@@ -3,7 +3,7 @@
 Every benchmark writes a Markdown fragment (with the exact command and the machine) and a JSON file of raw
 numbers to ``benchmarks/results/<name>.*`` (:func:`pipelines.reporting.write_report`). This command runs the
 chosen benchmarks one after the other as subprocesses from the repository root, then stitches the fragments, in
-a fixed order (experts, ablation, collect, loader, renderer, policy), under a short header into ``RESULTS.md``.
+a fixed order (experts, ablation, learning, collect, loader, renderer, policy), under a short header into ``RESULTS.md``.
 A fragment that does not exist yet is shown as "not measured yet" with the command that produces it, never
 silently dropped; a benchmark that fails is reported with its exit status and command, and the others still run.
 Numbers come only from those runs.
@@ -60,6 +60,13 @@ BENCHMARKS: tuple[Benchmark, ...] = (
         slow=True,
         takes_results_dir=False,
     ),
+    # ~45 min: 7 lerobot-train runs of 600 steps, each diagnosed and evaluated closed loop (20 episodes).
+    Benchmark(
+        "learning",
+        "Learning: the small recipe, per-head errors and closed-loop success",
+        "python -m benchmarks.bench_learning",
+        slow=True,
+    ),
     # Times: measured on the project's 2-core machine while it was busy with training runs (quiet: less).
     # collect ~20 min (the robosuite-camera baseline alone ~25 s per episode).
     Benchmark(
@@ -93,7 +100,7 @@ NAMES = tuple(b.name for b in BENCHMARKS)
 class ResultsConfig:
     """Options of ``sigma-results``."""
 
-    # Run only these benchmarks, comma-separated (experts, ablation, collect, loader, renderer, policy);
+    # Run only these benchmarks, comma-separated (experts, ablation, learning, collect, loader, renderer, policy);
     # "" = all fast ones (plus the slow ones with --include_slow true).
     only: str = ""
     # Never run these, comma-separated.

@@ -8,8 +8,13 @@ Per parameter p with gradient g (no bias correction):
     trust = clamp(||p||, 0, 10) / ||r||     (1 if either norm is 0)
     p <- p - lr * trust * r
 
-Weight decay applies to every parameter (biases, norms, positional encodings, the logit scale). All state values
-are tensors (``step`` included) so that LeRobot's safetensors checkpointing can save them.
+A parameter group with ``trust_ratio=False`` skips the trust ratio (``trust = 1``: a plain Adam step of size lr
+without bias correction). sigma puts biases, norm gains/offsets, the logit scale and the zero-initialised query
+tokens in such a group (``SigmaConfig.optimizer_exempt_small``): a trust ratio scales a tensor's step by its own
+norm, so a tensor that starts at zero (or near it) can hardly leave it in a short run; exempting them is common LAMB
+practice (You et al., 2019, exclude biases and LayerNorm from weight decay and adaptation). The group's
+``weight_decay`` applies as given (sigma sets it to 0 there). All state values are tensors (``step`` included) so
+that LeRobot's safetensors checkpointing can save them.
 """
 
 from __future__ import annotations
@@ -41,7 +46,14 @@ class Lamb(torch.optim.Optimizer):
             raise ValueError(f"Lamb: invalid betas {betas}")
         if eps <= 0.0 or weight_decay < 0.0:
             raise ValueError(f"Lamb: invalid eps {eps} or weight_decay {weight_decay}")
-        super().__init__(params, {"lr": lr, "betas": tuple(betas), "eps": eps, "weight_decay": weight_decay})
+        defaults = {
+            "lr": lr,
+            "betas": tuple(betas),
+            "eps": eps,
+            "weight_decay": weight_decay,
+            "trust_ratio": True,
+        }
+        super().__init__(params, defaults)
         self.foreach = foreach
 
     @torch.no_grad()
@@ -97,6 +109,8 @@ class Lamb(torch.optim.Optimizer):
         trust = torch.where(
             (weight_norm > 0) & (update_norm > 0), weight_norm / update_norm, torch.ones_like(weight_norm)
         )
+        if not group.get("trust_ratio", True):
+            trust = torch.ones_like(weight_norm)
         for p, u, scale in zip(params, update, (trust * -group["lr"]).unbind(), strict=True):
             p.addcmul_(u, scale.to(p.dtype))  # one launch per parameter, no host sync
 

@@ -100,7 +100,16 @@ class SigmaPolicy(PreTrainedPolicy):
 
     # ------------------------------------------------------------------ LeRobot API
     def get_optim_params(self):
-        return self.parameters()
+        """All network parameters; with ``optimizer_exempt_small`` two LAMB groups: matrices and convolution
+        kernels with the trust ratio, and without it (no weight decay either) the tensors a trust ratio keeps near
+        their small initial norm: biases, norm gains/offsets, the logit scale and the zero-initialised query
+        tokens (``sigma_policy/lamb.py``)."""
+        if not self.config.optimizer_exempt_small:
+            return self.parameters()
+        exempt, rest = [], []
+        for name, p in self.named_parameters():
+            (exempt if p.ndim <= 1 or name.endswith("query_tokens") else rest).append(p)
+        return [{"params": rest}, {"params": exempt, "trust_ratio": False, "weight_decay": 0.0}]
 
     def reset(self) -> None:
         self.last_prediction = None

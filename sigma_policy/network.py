@@ -63,6 +63,9 @@ class NetworkConfig:
     projection_activation: bool = True
     detach_heatmap_for_features: bool = True
     use_proprio: bool = False
+    # Activation of the rotation/gripper/collision MLP: "relu" (RVT and the released code) or "leaky_relu"
+    # (slope LRELU_SLOPE, like the rest of the network: a unit pushed below zero for every input still learns).
+    head_activation: Literal["relu", "leaky_relu"] = "relu"
     proprio_dim: int = 3
     logit_scale_init: float = math.log(1 / 0.07)
     channels_last: bool = False  # NHWC conv activations: the layout tensor-core convolutions want on GPUs
@@ -72,6 +75,8 @@ class NetworkConfig:
             raise ValueError(f"img_size {self.img_size} must be a multiple of patch_size {self.patch_size}")
         if self.query_attention not in ("self", "cross"):
             raise ValueError(f"query_attention must be 'self' or 'cross', got {self.query_attention!r}")
+        if self.head_activation not in ("relu", "leaky_relu"):
+            raise ValueError(f"head_activation must be 'relu' or 'leaky_relu', got {self.head_activation!r}")
         if self.num_queries < 1:
             raise ValueError(f"num_queries must be >= 1, got {self.num_queries}")
         if self.im_channels % 4 or self.attn_dim % 4:
@@ -302,11 +307,15 @@ class SigmaNetwork(nn.Module):
         self.trans_decoder = ConvBlock(cfg.final_dim, 1, kernel=3, act=False)
 
         h1, h2 = cfg.head_hidden_dims
+
+        def act() -> nn.Module:
+            return nn.ReLU() if cfg.head_activation == "relu" else nn.LeakyReLU(LRELU_SLOPE)
+
         self.feat_fc = nn.Sequential(
             nn.Linear(cfg.num_views * (c + cfg.final_dim), h1),
-            nn.ReLU(),
+            act(),
             nn.Linear(h1, h2),
-            nn.ReLU(),
+            act(),
             nn.Linear(h2, 3 * cfg.num_rotation_bins + 4),
         )
         self.contrastive = ContrastiveHeads(cfg, lang_sentence_dim) if cfg.use_contrastive else None

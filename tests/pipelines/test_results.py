@@ -27,7 +27,7 @@ def test_write_report_writes_markdown_and_json_with_command_and_machine(tmp_path
 
 
 def test_stitch_orders_sections_names_missing_and_failed_ones(tmp_path):
-    # Written out of order: the report order is fixed (experts, ablation, collect, loader, renderer, policy).
+    # Written out of order: the report order is fixed (NAMES, below).
     write_report("policy", "Policy speed", "| policy table |", {}, results_dir=tmp_path)
     write_report("loader", "Loader", "| loader table |", {}, results_dir=tmp_path)
     write_report("experts", "Experts", "| experts table |", {}, results_dir=tmp_path)
@@ -37,7 +37,7 @@ def test_stitch_orders_sections_names_missing_and_failed_ones(tmp_path):
     header = text[: text.index("### ")]
     assert "`sigma-results`" in header and "sigma-results --stitch_only true" in header
     assert "Stitched on: " in header and " cores" in header
-    assert NAMES == ("experts", "ablation", "collect", "loader", "renderer", "policy")
+    assert NAMES == ("experts", "ablation", "learning", "collect", "loader", "renderer", "policy")
     titles = [line for line in text.splitlines() if line.startswith("#")]
     assert titles[0] == "# sigma results" and len(titles) == 1 + len(BENCHMARKS)
     assert all(t.startswith("### ") for t in titles[1:])  # fragment '## ' titles demoted under the header

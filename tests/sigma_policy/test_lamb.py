@@ -113,3 +113,35 @@ def test_foreach_update_equals_the_per_parameter_update():
             opt.zero_grad()
     for a, b in zip(model.parameters(), twin.parameters(), strict=True):
         torch.testing.assert_close(a, b, rtol=0, atol=0)
+
+
+def test_a_group_without_trust_ratio_takes_plain_steps():
+    """Tensors near zero barely move under a trust ratio; the exempt group moves by ~lr per element."""
+    torch.manual_seed(0)
+    small = torch.nn.Parameter(torch.full((8,), 1e-4))
+    exempt = torch.nn.Parameter(torch.full((8,), 1e-4))
+    opt = Lamb(
+        [{"params": [small]}, {"params": [exempt], "trust_ratio": False, "weight_decay": 0.0}], lr=1e-2
+    )
+    for _ in range(10):
+        opt.zero_grad()
+        (small.sum() + exempt.sum()).backward()
+        opt.step()
+    assert (small - 1e-4).abs().max() < 1e-4  # moved by ~lr * ||p|| per step: almost nothing
+    assert (exempt - 1e-4).abs().min() > 0.05  # ten steps of ~lr each (more early: no bias correction)
+
+
+def test_small_preset_exempts_biases_norms_and_query_tokens(tmp_path):
+    from tests.sigma_policy.test_modeling import build
+    from tests.sigma_policy.tiny_dataset import write_tiny_keyframe_dataset
+
+    root = write_tiny_keyframe_dataset(tmp_path / "tiny", episodes=1, size=32)
+    _, policy, *_ = build(root)
+    groups = policy.get_optim_params()
+    assert len(groups) == 2 and groups[1]["trust_ratio"] is False and groups[1]["weight_decay"] == 0.0
+    assert all(p.ndim >= 2 for p in groups[0]["params"])
+    shapes = {tuple(p.shape) for p in groups[1]["params"]}
+    assert any(len(s) == 3 for s in shapes)  # the (1, num_queries, c) query tokens
+
+    _, paper, *_ = build(root, preset="paper", img_size=32, patch_size=8, attn_dim=64, attn_heads=2)
+    assert list(paper.get_optim_params()) == list(paper.parameters())  # the paper's LAMB: no exemption

@@ -27,7 +27,7 @@ def tiny_root(tmp_path_factory) -> Path:
 
 def build(root: Path, **overrides):
     """Policy + processors + dataset the way ``lerobot-train`` builds them (depth read in mm, LeRobot's default)."""
-    cfg = SigmaConfig(device="cpu", scene_bounds=list(BOUNDS), **(FAST | overrides))
+    cfg = SigmaConfig(**({"device": "cpu", "scene_bounds": list(BOUNDS)} | FAST | overrides))
     probe = LeRobotDataset("local/sigma_tiny", root=root)
     ds = LeRobotDataset(
         "local/sigma_tiny", root=root, delta_timestamps=resolve_delta_timestamps(cfg, probe.meta)

@@ -133,6 +133,30 @@ def test_config_presets_and_overrides():
         SigmaConfig(scene_bounds=[0, 0, 0, 1, -1, 1], device="cpu")
     with pytest.raises(ValueError, match="multiple of patch_size"):
         SigmaConfig(preset="small", img_size=60, device="cpu")
+    # The CPU recipe (RESULTS.md "Learning") vs the paper's; explicit fields still win over the preset.
+    recipe = ("optimizer_lr", "optimizer_exempt_small", "aug_translation_range", "aug_yaw_range_deg")
+    assert tuple(getattr(small, f) for f in recipe) == (1e-2, True, 0.0, 0.0)
+    assert tuple(getattr(paper, f) for f in recipe) == (9.6e-4, False, 0.125, 45.0)
+    assert SigmaConfig(preset="small", aug_yaw_range_deg=15, device="cpu").aug_yaw_range_deg == 15
+    assert (small.network_config().head_activation, paper.network_config().head_activation) == (
+        "leaky_relu",
+        "relu",
+    )
+
+
+@pytest.mark.parametrize("activation", ["relu", "leaky_relu"])
+def test_head_units_below_zero_for_every_input_learn_only_when_leaky(activation: str):
+    """A head unit whose pre-activation is negative for every input is dead under ReLU (no gradient reaches its
+    weights: seen as a collapsed gripper/rotation head in a lift+stack run at lr 1e-2); LeakyReLU keeps it alive."""
+    net = SigmaNetwork(dataclasses.replace(SMALL, head_activation=activation), 12, 12)
+    first = net.feat_fc[0]
+    with torch.no_grad():
+        first.bias.fill_(-1e3)  # every unit below zero for any input
+    img, tok, _, _ = inputs(SMALL)
+    out = net(img, tok)
+    (out.rot_logits.sum() + out.grip_logits.sum()).backward()
+    grad = first.weight.grad.abs().sum().item()
+    assert (grad > 0) == (activation == "leaky_relu"), grad
 
 
 @pytest.mark.parametrize(("size", "scale", "pad"), [(20, 11, 5), (8, 8, 1), (5, 3, 0), (1, 4, 2)])

@@ -1,0 +1,464 @@
+"""``sigma-diagnose``: per-head errors of sigma checkpoints on keyframe datasets, and learning curves.
+
+For every frame of a keyframe dataset that has a goal (all but the last frame of each episode) the checkpoint
+predicts the next keyframe, deterministically (no augmentation, no render noise: what ``sigma-eval`` acts on),
+and is compared with the recorded one:
+
+* **translation** error, centimetres (Euclidean distance of the positions);
+* **rotation** error, degrees: the geodesic angle, and per extrinsic-xyz Euler axis (roll, pitch, yaw) the wrapped
+  difference of the gimbal-fixed angles that the rotation head classifies (``sigma_policy.rotation``);
+* **gripper** and **collision** accuracy (the two binary heads).
+
+Errors are summarised (median, mean, 90th percentile, share within 1 cm / 2 cm / 10°) over the whole set and per
+keyframe step (frame k of an episode predicts its keyframe k + 1: for Lift step 0 is the pre-grasp pose, 1 the
+grasp, 2 the close, 3 the lift), which tells *where* a policy fails.
+
+**Instruction swap**: sigma collects every variation of a task from the same seeds, and a seed fixes the scene, so
+the start frames of e.g. "stack the red cube on the green cube" and "stack the green cube on the red cube" with one
+seed are the same scene with different first targets. For each such scene and each of its instructions the
+checkpoint predicts from that one observation; the prediction should land at that instruction's target, nearer to
+it than to any other instruction's. Reported as ``swap_nearest`` (share of predictions nearest their own target:
+1 = follows the language, 1 / variations = ignores it) and ``swap_trans_cm_median``.
+
+Pointed at a ``lerobot-train`` output directory, it diagnoses every saved checkpoint (``checkpoints/<step>/``) on
+the training keyframes and on held-out keyframes, and writes learning curves: ``diagnostics.json`` (every number),
+``curves.png`` and ``curves.rrd`` (Rerun scalars, one entity per metric). Held-out keyframes are either another
+dataset (``--heldout_root``, e.g. collected with other seeds) or the episodes of the training dataset that the run
+did not train on (``--dataset.episodes`` in its ``train_config.json``).
+
+Example::
+
+    sigma-diagnose --run outputs/train --heldout_root outputs/heldout/keyframe
+    sigma-diagnose --checkpoint outputs/train/checkpoints/last/pretrained_model --root outputs/data/keyframe
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+import sys
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import draccus
+import numpy as np
+
+METRICS = (
+    "trans_cm_median",
+    "trans_cm_mean",
+    "trans_cm_p90",
+    "within_1cm",
+    "within_2cm",
+    "rot_deg_median",
+    "rot_deg_mean",
+    "within_10deg",
+    "roll_deg_mean",
+    "pitch_deg_mean",
+    "yaw_deg_mean",
+    "gripper_acc",
+    "collision_acc",
+)
+
+
+@dataclass
+class DiagnoseConfig:
+    """Options of ``sigma-diagnose`` (give ``--run`` or ``--checkpoint``)."""
+
+    # A lerobot-train output directory: every checkpoint under checkpoints/ is diagnosed (learning curves).
+    run: Path | None = None
+    # One pretrained_model directory (instead of --run).
+    checkpoint: Path | None = None
+    # The training keyframe dataset (default: the one recorded in the checkpoint's train_config.json).
+    root: Path | None = None
+    # Held-out keyframes: another keyframe dataset (default: the training dataset's episodes not trained on).
+    heldout_root: Path | None = None
+    # At most this many frames per set (evenly spaced; 0 = all).
+    max_frames: int = 200
+    batch_size: int = 16
+    device: str = "cpu"
+    # Where diagnostics.json, curves.png and curves.rrd go (default: <run>/diagnostics or <checkpoint>/..).
+    output_dir: Path | None = None
+
+
+# ---------------------------------------------------------------------------------------------- errors
+
+
+def wrap_deg(x: np.ndarray) -> np.ndarray:
+    """Angles in degrees wrapped to [-180, 180)."""
+    return (np.asarray(x) + 180.0) % 360.0 - 180.0
+
+
+def geodesic_deg(q1: np.ndarray, q2: np.ndarray) -> np.ndarray:
+    """Angle (degrees) of the rotation between unit quaternions ``(N, 4)`` (any order, sign-invariant)."""
+    q1 = q1 / np.linalg.norm(q1, axis=-1, keepdims=True)
+    q2 = q2 / np.linalg.norm(q2, axis=-1, keepdims=True)
+    dot = np.abs(np.sum(q1 * q2, axis=-1)).clip(0.0, 1.0)
+    return np.degrees(2 * np.arccos(dot))
+
+
+def action_errors(pred: np.ndarray, true: np.ndarray) -> dict[str, np.ndarray]:
+    """Per-frame errors between predicted and recorded 9-D keyframe actions ``(N, 9)``."""
+    import torch
+
+    from sigma_policy.rotation import _gimbal_fixed_euler
+
+    pred, true = np.asarray(pred, dtype=np.float64), np.asarray(true, dtype=np.float64)
+    euler_p = _gimbal_fixed_euler(torch.from_numpy(pred[:, 3:7])).numpy()
+    euler_t = _gimbal_fixed_euler(torch.from_numpy(true[:, 3:7])).numpy()
+    axes = np.abs(wrap_deg(euler_p - euler_t))
+    return {
+        "trans_cm": 100 * np.linalg.norm(pred[:, :3] - true[:, :3], axis=-1),
+        "rot_deg": geodesic_deg(pred[:, 3:7], true[:, 3:7]),
+        "roll_deg": axes[:, 0],
+        "pitch_deg": axes[:, 1],
+        "yaw_deg": axes[:, 2],
+        "gripper_ok": (pred[:, 7] > 0.5) == (true[:, 7] > 0.5),
+        "collision_ok": (pred[:, 8] > 0.5) == (true[:, 8] > 0.5),
+    }
+
+
+def summarise_errors(err: dict[str, np.ndarray]) -> dict[str, float]:
+    """Median / mean / p90 / within-threshold shares of :func:`action_errors` (empty input -> NaNs)."""
+    t, r = err["trans_cm"], err["rot_deg"]
+    if len(t) == 0:
+        return dict.fromkeys(METRICS, math.nan) | {"frames": 0}
+    return {
+        "frames": len(t),
+        "trans_cm_median": float(np.median(t)),
+        "trans_cm_mean": float(np.mean(t)),
+        "trans_cm_p90": float(np.percentile(t, 90)),
+        "within_1cm": float(np.mean(t <= 1.0)),
+        "within_2cm": float(np.mean(t <= 2.0)),
+        "rot_deg_median": float(np.median(r)),
+        "rot_deg_mean": float(np.mean(r)),
+        "within_10deg": float(np.mean(r <= 10.0)),
+        "roll_deg_mean": float(np.mean(err["roll_deg"])),
+        "pitch_deg_mean": float(np.mean(err["pitch_deg"])),
+        "yaw_deg_mean": float(np.mean(err["yaw_deg"])),
+        "gripper_acc": float(np.mean(err["gripper_ok"])),
+        "collision_acc": float(np.mean(err["collision_ok"])),
+    }
+
+
+# ---------------------------------------------------------------------------------------------- data
+
+
+@dataclass
+class KeyframeSet:
+    """Frames of a keyframe dataset that have a goal, with their recorded actions and keyframe step."""
+
+    name: str
+    dataset: Any  # LeRobotDataset
+    indices: list[int]  # dataset rows
+    steps: np.ndarray  # keyframe step within the episode (frame_index)
+    episodes: list[int] | None = None  # the dataset episodes it covers (None = all)
+    swap: list[SwapScene] = field(default_factory=list)  # scenes for the instruction-swap check
+
+
+def goal_rows(
+    dataset: Any, episodes: list[int] | None = None, max_frames: int = 0
+) -> tuple[list[int], list[int]]:
+    """Rows of ``dataset`` (restricted to ``episodes``) except each episode's last frame; evenly thinned to
+    ``max_frames``. Returns (rows, their frame index in the episode)."""
+    eps = dataset.meta.episodes
+    rows, steps = [], []
+    wanted = None if episodes is None else set(episodes)
+    for ep in range(len(eps)):
+        index = int(eps["episode_index"][ep])
+        if wanted is not None and index not in wanted:
+            continue
+        start, stop = int(eps["dataset_from_index"][ep]), int(eps["dataset_to_index"][ep])
+        for k, row in enumerate(range(start, stop - 1)):
+            rows.append(row)
+            steps.append(k)
+    if max_frames and len(rows) > max_frames:
+        keep = np.linspace(0, len(rows) - 1, max_frames).round().astype(int)
+        rows, steps = [rows[i] for i in keep], [steps[i] for i in keep]
+    return rows, steps
+
+
+def open_dataset(root: Path) -> Any:
+    """A sigma keyframe dataset read by stock LeRobot (depth in LeRobot's default unit, mm)."""
+    from lerobot.datasets.lerobot_dataset import LeRobotDataset
+
+    if not (Path(root) / "meta" / "info.json").exists():
+        raise FileNotFoundError(f"{root} is not a LeRobot dataset (no meta/info.json)")
+    return LeRobotDataset(f"local/{Path(root).name}", root=root, video_backend="pyav")
+
+
+def trained_episodes(checkpoint: Path) -> tuple[Path | None, list[int] | None]:
+    """The dataset root and episode subset recorded in a checkpoint's ``train_config.json``."""
+    path = Path(checkpoint) / "train_config.json"
+    if not path.exists():
+        return None, None
+    ds = json.loads(path.read_text()).get("dataset", {})
+    root = ds.get("root")
+    return (Path(root) if root else None), ds.get("episodes")
+
+
+def keyframe_sets(cfg: DiagnoseConfig, checkpoint: Path) -> list[KeyframeSet]:
+    """The training keyframes, and the held-out keyframes when there are any."""
+    root, episodes = trained_episodes(checkpoint)
+    root = cfg.root or root
+    if root is None:
+        raise ValueError(f"no --root given and {checkpoint}/train_config.json names no dataset root")
+    train_ds = open_dataset(root)
+    rows, steps = goal_rows(train_ds, episodes, cfg.max_frames)
+    sets = [KeyframeSet("train", train_ds, rows, np.asarray(steps), episodes)]
+    if cfg.heldout_root is not None:
+        ho = open_dataset(cfg.heldout_root)
+        rows, steps = goal_rows(ho, None, cfg.max_frames)
+        sets.append(KeyframeSet("heldout", ho, rows, np.asarray(steps)))
+    elif episodes is not None:
+        rest = sorted(set(range(train_ds.meta.total_episodes)) - set(episodes))
+        if rest:
+            rows, steps = goal_rows(train_ds, rest, cfg.max_frames)
+            sets.append(KeyframeSet("heldout", train_ds, rows, np.asarray(steps), rest))
+    return sets
+
+
+# ---------------------------------------------------------------------------------------------- predict
+
+
+def load_checkpoint(checkpoint: Path, device: str = "cpu") -> tuple[Any, Any]:
+    """A sigma policy and its saved pre-processor (eval mode)."""
+    from lerobot.policies.factory import make_pre_post_processors
+
+    from sigma_policy.modeling_sigma import SigmaPolicy
+
+    policy = SigmaPolicy.from_pretrained(str(checkpoint))
+    policy.config.device = device
+    policy.to(device).eval()
+    pre, _ = make_pre_post_processors(
+        policy.config,
+        pretrained_path=str(checkpoint),
+        preprocessor_overrides={"device_processor": {"device": device}},
+    )
+    return policy, pre
+
+
+def predict_rows(policy: Any, pre: Any, kf: KeyframeSet, batch_size: int) -> tuple[np.ndarray, np.ndarray]:
+    """(predicted, recorded) actions ``(N, 9)`` for the rows of ``kf``."""
+    import torch
+
+    preds, trues = [], []
+    for start in range(0, len(kf.indices), batch_size):
+        items = [kf.dataset[i] for i in kf.indices[start : start + batch_size]]
+        batch: dict[str, Any] = {}
+        for key in items[0]:
+            if key.startswith("observation.") or key == "action":
+                batch[key] = torch.stack([it[key] for it in items])
+        batch["task"] = [it["task"] for it in items]
+        trues.append(batch["action"].numpy())
+        with torch.inference_mode():
+            preds.append(policy.predict(pre(batch)).action.float().cpu().numpy())
+    return np.concatenate(preds), np.concatenate(trues)
+
+
+@dataclass
+class SwapScene:
+    """One scene (task, seed) seen under several instructions: the start-frame row and first target of each."""
+
+    task: str
+    seed: int
+    rows: list[int]
+    instructions: list[str]
+    targets: np.ndarray  # (I, 3) first keyframe position per instruction
+
+
+def swap_scenes(kf: KeyframeSet, max_scenes: int = 20) -> list[SwapScene]:
+    """Scenes of ``kf``'s dataset recorded under more than one instruction (same task and seed)."""
+    from sigma_data.writers import SIDECAR, read_sidecar
+
+    root = Path(kf.dataset.root)
+    if not (root / SIDECAR).exists():
+        return []  # not collected by sigma: no seeds to pair scenes by
+    groups: dict[tuple[str, int], list[dict]] = {}
+    wanted = None if kf.episodes is None else set(kf.episodes)
+    for ep in read_sidecar(root).get("episodes", []):
+        if wanted is not None and ep["episode_index"] not in wanted:
+            continue
+        if ep.get("seed") is not None and not ep.get("chain_start"):
+            groups.setdefault((ep["task"], int(ep["seed"])), []).append(ep)
+    starts = kf.dataset.meta.episodes["dataset_from_index"]
+    scenes = []
+    for (task, seed), eps in sorted(groups.items()):
+        if len({e["instruction"] for e in eps}) < 2:
+            continue
+        rows = [int(starts[e["episode_index"]]) for e in eps]
+        targets = np.stack([kf.dataset[r]["action"][:3].numpy() for r in rows])
+        scenes.append(SwapScene(task, seed, rows, [e["instruction"] for e in eps], targets))
+        if len(scenes) == max_scenes:
+            break
+    return scenes
+
+
+def instruction_swap(policy: Any, pre: Any, kf: KeyframeSet, scenes: list[SwapScene]) -> dict[str, float]:
+    """Predict every scene under each of its instructions (see module docstring)."""
+    import torch
+
+    nearest, errors = [], []
+    for scene in scenes:
+        item = kf.dataset[scene.rows[0]]
+        obs = {k: v[None] for k, v in item.items() if k.startswith("observation.")}
+        for i, instruction in enumerate(scene.instructions):
+            with torch.inference_mode():
+                pos = policy.predict(pre(obs | {"task": [instruction]})).action[0, :3].float().cpu().numpy()
+            dist = np.linalg.norm(scene.targets - pos, axis=-1)
+            nearest.append(int(np.argmin(dist)) == i)
+            errors.append(100 * dist[i])
+    if not nearest:
+        return {}
+    return {
+        "swap_scenes": len(scenes),
+        "swap_nearest": float(np.mean(nearest)),
+        "swap_trans_cm_median": float(np.median(errors)),
+    }
+
+
+def diagnose_checkpoint(
+    policy: Any, pre: Any, sets: list[KeyframeSet], batch_size: int = 16
+) -> dict[str, dict[str, Any]]:
+    """Per set: the overall summary and one per keyframe step."""
+    out: dict[str, dict[str, Any]] = {}
+    for kf in sets:
+        pred, true = predict_rows(policy, pre, kf, batch_size)
+        err = action_errors(pred, true)
+        per_step = {
+            str(int(s)): summarise_errors({k: v[kf.steps == s] for k, v in err.items()})
+            for s in np.unique(kf.steps)
+        }
+        out[kf.name] = {"all": summarise_errors(err), "per_step": per_step}
+        if kf.swap:
+            out[kf.name]["swap"] = instruction_swap(policy, pre, kf, kf.swap)
+    return out
+
+
+# ---------------------------------------------------------------------------------------------- runs
+
+
+def run_checkpoints(run_dir: Path) -> list[tuple[int, Path]]:
+    """(step, pretrained_model dir) of every numbered checkpoint of a ``lerobot-train`` output directory."""
+    ckpts = []
+    for d in sorted((Path(run_dir) / "checkpoints").glob("*")):
+        if d.name.isdigit() and (d / "pretrained_model" / "config.json").exists():
+            ckpts.append((int(d.name), d / "pretrained_model"))
+    if not ckpts:
+        raise FileNotFoundError(f"{run_dir}/checkpoints has no numbered checkpoint with a pretrained_model")
+    return ckpts
+
+
+def plot_curves(curves: dict[str, Any], path: Path) -> None:
+    """Translation (cm), rotation (deg) and head accuracies against training step, train vs held-out."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    steps = curves["steps"]
+    panels = [
+        ("translation error, median (cm)", "trans_cm_median"),
+        ("rotation error, median (deg)", "rot_deg_median"),
+        ("yaw error, mean (deg)", "yaw_deg_mean"),
+        ("gripper accuracy", "gripper_acc"),
+    ]
+    fig, axes = plt.subplots(1, len(panels), figsize=(4 * len(panels), 3.2))
+    for ax, (title, metric) in zip(axes, panels, strict=True):
+        for name, series in curves["sets"].items():
+            ax.plot(steps, series[metric], marker="o", label=name)
+        ax.set_title(title, fontsize=10)
+        ax.set_xlabel("training step")
+        ax.grid(alpha=0.3)
+    axes[0].legend()
+    fig.tight_layout()
+    fig.savefig(path, dpi=100)
+    plt.close(fig)
+
+
+def log_curves_rerun(curves: dict[str, Any], path: Path) -> None:
+    """Rerun scalars: ``diagnostics/<set>/<metric>`` on the ``step`` timeline."""
+    import rerun as rr
+
+    rec = rr.RecordingStream("sigma-diagnose")
+    rec.save(str(path))
+    for i, step in enumerate(curves["steps"]):
+        rec.set_time("step", sequence=step)
+        for name, series in curves["sets"].items():
+            for metric in series:
+                value = series[metric][i]
+                if value is not None and math.isfinite(value):
+                    rec.log(f"diagnostics/{name}/{metric}", rr.Scalars(value))
+    rec.flush()
+
+
+def run_diagnose(cfg: DiagnoseConfig) -> dict[str, Any]:
+    """Diagnose one checkpoint or every checkpoint of a run; write the report; return it."""
+    from tqdm import tqdm
+
+    if (cfg.run is None) == (cfg.checkpoint is None):
+        raise ValueError("give exactly one of --run (a lerobot-train output dir) or --checkpoint")
+    ckpts = run_checkpoints(cfg.run) if cfg.run is not None else [(-1, Path(cfg.checkpoint))]
+    out_dir = cfg.output_dir or (
+        Path(cfg.run) / "diagnostics" if cfg.run else Path(cfg.checkpoint).parent / "diagnostics"
+    )
+    out_dir.mkdir(parents=True, exist_ok=True)
+    sets = keyframe_sets(cfg, ckpts[-1][1])
+    for kf in sets:
+        kf.swap = swap_scenes(kf)
+    report: dict[str, Any] = {"checkpoints": [], "sets": {s.name: len(s.indices) for s in sets}}
+    for step, ckpt in tqdm(ckpts, desc="sigma-diagnose", unit="checkpoint"):
+        policy, pre = load_checkpoint(ckpt, cfg.device)
+        report["checkpoints"].append(
+            {"step": step, "path": str(ckpt), **diagnose_checkpoint(policy, pre, sets, cfg.batch_size)}
+        )
+    curves = {
+        "steps": [c["step"] for c in report["checkpoints"]],
+        "sets": {
+            s.name: {m: [c[s.name]["all"][m] for c in report["checkpoints"]] for m in METRICS} for s in sets
+        },
+    }
+    for s in sets:
+        if s.swap:
+            curves["sets"][s.name]["swap_nearest"] = [
+                c[s.name]["swap"]["swap_nearest"] for c in report["checkpoints"]
+            ]
+    report["curves"] = curves
+    (out_dir / "diagnostics.json").write_text(json.dumps(report, indent=2))
+    if len(ckpts) > 1:
+        plot_curves(curves, out_dir / "curves.png")
+        log_curves_rerun(curves, out_dir / "curves.rrd")
+    report["output_dir"] = str(out_dir)
+    return report
+
+
+def summary_line(report: dict[str, Any]) -> str:
+    last = report["checkpoints"][-1]
+    parts = []
+    for name in report["sets"]:
+        a = last[name]["all"]
+        parts.append(
+            f"{name}: {a['trans_cm_median']:.2f} cm, {a['rot_deg_median']:.1f} deg, "
+            f"gripper {100 * a['gripper_acc']:.0f}% ({a['frames']} frames)"
+        )
+        swap = last[name].get("swap")
+        if swap:
+            parts[-1] += (
+                f", instruction swap {100 * swap['swap_nearest']:.0f}% ({swap['swap_scenes']} scenes)"
+            )
+    step = last["step"]
+    at = f"step {step}" if step >= 0 else "checkpoint"
+    return f"sigma-diagnose: {at}: " + "; ".join(parts) + f" -> {report['output_dir']}"
+
+
+def main(argv: list[str] | None = None) -> int:
+    os.environ.setdefault("HF_HUB_OFFLINE", "1")
+    cfg = draccus.parse(DiagnoseConfig, args=sys.argv[1:] if argv is None else argv)
+    report = run_diagnose(cfg)
+    print(summary_line(report))
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

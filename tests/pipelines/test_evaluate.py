@@ -1,0 +1,79 @@
+"""sigma-eval's per-episode failure reasons, from keyframe traces (the rollouts themselves run in test_demo)."""
+
+from __future__ import annotations
+
+import pytest
+
+from pipelines.evaluate import EpisodeResult, _failure_kind, failure_reason, markdown_table, summarise
+
+
+def _step(k, xyz, grip=1.0, status="converged", closed=False, opened=False, gap=0.08):
+    return {
+        "keyframe": k,
+        "action": [*xyz, 1.0, 0.0, 0.0, 0.0, grip, 0.0],
+        "arm_status": status,
+        "closed_now": closed,
+        "opened_now": opened,
+        "finger_gap_m": gap,
+    }
+
+
+def _result(trace, success=False, error=None):
+    return EpisodeResult("lift", "lift_cube", 7, success, len(trace), 100, 1.0, None, error, trace=trace)
+
+
+PREGRASP, GRASP, LIFT = (0.0, 0.0, 0.9), (0.0, 0.0, 0.82), (0.0, 0.0, 0.97)
+
+
+@pytest.mark.parametrize(
+    ("trace", "reason"),
+    [
+        # closed on nothing: the fingers met
+        (
+            [_step(1, PREGRASP), _step(2, GRASP), _step(3, GRASP, 0.0, closed=True, gap=0.002)],
+            "grasp missed at keyframe 3",
+        ),
+        # held the cube, then let go away from success
+        (
+            [_step(1, GRASP, 0.0, closed=True, gap=0.04), _step(2, LIFT, 1.0, opened=True)],
+            "dropped at keyframe 2",
+        ),
+        # asked for the same place twice with the same gripper command
+        (
+            [_step(1, GRASP, 0.0, closed=True, gap=0.04), _step(2, GRASP, 0.0), _step(3, GRASP, 0.0)],
+            "repeats keyframe 1",
+        ),
+        (
+            [_step(1, PREGRASP), _step(2, (0.5, 0.5, 0.5), status="stalled")],
+            "keyframe 2 not reached (stalled)",
+        ),
+        ([_step(k, (0.0, 0.0, 0.8 + 0.05 * k)) for k in range(1, 13)], "timeout after 12 keyframes"),
+    ],
+)
+def test_failure_reasons(trace, reason):
+    assert failure_reason(_result(trace), max_keyframes=12) == reason
+
+
+def test_success_and_errors():
+    assert failure_reason(_result([_step(1, LIFT)], success=True), 12) is None
+    assert (
+        failure_reason(_result([], error="RuntimeError('boom')\nmore"), 12) == "error: RuntimeError('boom')"
+    )
+    assert _failure_kind("grasp missed at keyframe 3") == "grasp missed"
+    assert _failure_kind("keyframe 2 not reached (budget)") == "not reached"
+
+
+def test_summary_counts_failure_kinds(tmp_path):
+    from pipelines.evaluate import EvalConfig
+
+    results = [
+        _result([_step(1, PREGRASP), _step(2, GRASP, 0.0, closed=True, gap=0.001)]),
+        _result([_step(1, PREGRASP), _step(2, GRASP, 0.0, closed=True, gap=0.001)]),
+        _result([_step(1, LIFT)], success=True),
+    ]
+    for r in results:
+        r.failure = failure_reason(r, 12)
+    summary = summarise(results, EvalConfig(output_dir=tmp_path))
+    row = summary["variations"][0]
+    assert row["successes"] == 1 and row["failures"] == {"grasp missed": 2}
+    assert "grasp missed 2" in markdown_table(summary)
