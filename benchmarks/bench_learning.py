@@ -122,7 +122,8 @@ def run_one(cfg: LearningBenchConfig, name: str, args: list[str], train_root: Pa
         scene_bounds=scene_bounds([cfg.task]),
         seed=cfg.seed,
         job_name=name,
-        extra_args=[f"--save_freq={max(1, cfg.steps // cfg.checkpoints)}", *args],
+        save_freq=max(1, cfg.steps // cfg.checkpoints),
+        extra_args=args,
     )
     timing = run_dir / "train_seconds.json"
     if not (run.checkpoint / "config.json").exists():

@@ -28,6 +28,8 @@ class TrainRun:
     device: str = "cpu"
     seed: int = 0
     job_name: str = "sigma"
+    # Save a checkpoint every this many steps (None = only at the end); sigma-diagnose scores each one.
+    save_freq: int | None = None
     # Extra ``--policy.*`` (or any lerobot-train) arguments, e.g. ["--policy.use_contrastive=false"].
     extra_args: list[str] = field(default_factory=list)
 
@@ -52,7 +54,7 @@ class TrainRun:
             f"--batch_size={self.batch_size}",
             "--num_workers=0",
             f"--log_freq={max(1, self.steps // 20)}",
-            f"--save_freq={self.steps}",
+            f"--save_freq={self.save_freq or self.steps}",
             "--wandb.enable=false",
             f"--seed={self.seed}",
             *self.extra_args,

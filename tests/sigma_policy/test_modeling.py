@@ -279,3 +279,41 @@ def test_scene_box_comes_from_the_dataset_sidecar_when_unset(tmp_path):
     from sigma_policy.configuration_sigma import DEFAULT_SCENE_BOUNDS
 
     assert bare.scene_bounds == DEFAULT_SCENE_BOUNDS
+
+
+def test_augmented_target_lands_on_the_augmented_cube_inside_forward(tiny_root, monkeypatch):
+    """Augmentation, render and target composed as ``SigmaPolicy.forward`` composes them: under a random yaw and
+    shift, the heatmap target of every start frame (the pre-grasp pose, straight above the cube centre) lies on
+    the red cube in the rendered top view. (Targets left unshifted while the cloud moves fail this test.)"""
+    import sigma_policy.modeling_sigma as modeling
+
+    captured = {}
+    render = SigmaPolicy._render
+    heatmaps = modeling.gaussian_heatmaps
+
+    def keep_views(self, points, colors, bounds):
+        captured.setdefault("views", render(self, points, colors, bounds))
+        return captured["views"]
+
+    def keep_uv(uv, *args, **kwargs):
+        captured["uv"] = uv
+        return heatmaps(uv, *args, **kwargs)
+
+    monkeypatch.setattr(SigmaPolicy, "_render", keep_views)
+    monkeypatch.setattr(modeling, "gaussian_heatmaps", keep_uv)
+    _, policy, pre, _, ds = build(
+        tiny_root, image_noise=0.0, aug_translation_range=0.1, aug_yaw_range_deg=45.0, use_contrastive=False
+    )
+    idx = sample_indices(ds)
+    torch.manual_seed(3)
+    policy.forward(pre(training_batch(ds, idx)))
+    views, uv = captured["views"], captured["uv"]  # (B, V, 10, S, S), (B, V, 2)
+    top = views[:, 0, 3:6]  # RGB of the top view
+    size = views.shape[-1]
+    # Frame 0's goal is the pre-grasp pose above the cube (frame 1's, the grasp, hides under the gripper marker).
+    starts = [k for k, i in enumerate(idx) if int(ds[i]["frame_index"]) == 0]
+    assert starts
+    for k in starts:
+        col, row = (uv[k, 0].floor().long().clamp(0, size - 1)).tolist()
+        r, g, b = top[k, :, row, col].tolist()
+        assert r > 0.5 and g < 0.3 and b < 0.3, (k, (row, col), (r, g, b))
