@@ -84,6 +84,8 @@ class EpisodeResult:
     failure: str | None = None
     # One entry per keyframe taken: the action, how the arm move ended, the finger gap after it.
     trace: list[dict] = field(default_factory=list)
+    # A failed episode that ended in another variation's success state (e.g. the other stacking order).
+    other_variation: str | None = None
 
 
 # Panda fingers: each joint travels 0..0.04 m; a closed gripper whose gap is below this holds nothing.
@@ -95,7 +97,8 @@ REPEAT_TOLERANCE_M = 0.01
 def failure_reason(result: EpisodeResult, max_keyframes: int) -> str | None:
     """A short, task-independent reason for a failed episode, from its keyframe trace.
 
-    ``error: ...`` (an exception), ``grasp missed at keyframe k`` (the gripper closed on nothing: finger gap
+    ``error: ...`` (an exception), ``wrong object: did <variation>`` (the scene ended in another variation's
+    success state: the policy did the other instruction), ``grasp missed at keyframe k`` (the gripper closed on nothing: finger gap
     below 1 cm), ``keyframe k not reached (stalled|budget)`` (the executor could not get the arm there),
     ``dropped at keyframe k`` (something was held, then the gripper opened away from success), ``repeats
     keyframe k`` (the next keyframe is the same pose and gripper command: stuck), and
@@ -105,6 +108,8 @@ def failure_reason(result: EpisodeResult, max_keyframes: int) -> str | None:
         return None
     if result.error is not None:
         return f"error: {result.error.splitlines()[0][:120]}"
+    if result.other_variation is not None:
+        return f"wrong object: did {result.other_variation}"
     held = False
     for step in result.trace:
         k = step["keyframe"]
@@ -279,6 +284,8 @@ class _Worker:
             error,
             trace=trace,
         )
+        if not success and error is None:
+            result.other_variation = other_variation_done(env)
         result.failure = failure_reason(result, self.cfg.max_keyframes)
         return result
 
@@ -302,6 +309,14 @@ class _Worker:
         pred = self.policy.last_prediction
         if pred is not None:
             log_policy_frame(rec, **prediction_frame(self.policy, pred, instruction), step=step)
+
+
+def other_variation_done(env) -> str | None:
+    """The name of another variation of ``env``'s task whose success check passes now, if any."""
+    for variation in env.task.variations:
+        if variation.name != env.variation.name and env.task.success(env.env, variation):
+            return variation.name
+    return None
 
 
 def _batched(value):
@@ -359,7 +374,7 @@ def summarise(results: list[EpisodeResult], cfg: EvalConfig) -> dict:
     }
 
 
-FAILURE_KINDS = ("error", "grasp missed", "dropped", "repeats", "not reached", "timeout")
+FAILURE_KINDS = ("error", "wrong object", "grasp missed", "dropped", "repeats", "not reached", "timeout")
 
 
 def _failure_kind(reason: str) -> str:

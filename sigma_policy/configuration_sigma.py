@@ -19,12 +19,12 @@ from the preset in ``__post_init__``; a field given explicitly (CLI or ``config.
 
 LeRobot's cosine schedule shrinks warm-up and decay to the run's ``--steps`` when the run is shorter than the decay.
 
-The small recipe (measured, ``RESULTS.md`` "Learning": 40 Lift demonstrations, 600 steps at batch 8 on 2 CPU
-cores, errors on 20 held-out episodes): the earlier small preset (lr 3e-3, trust ratio on every tensor, ±12.5 cm /
-±45° augmentation) underfits: 1500 steps left its own training keyframes 2.3 cm off. lr 1e-2 with the exemption but
-the old augmentation: 1.25 cm median, the close-then-lift step 14 cm off (it repeats the grasp), 3/20 lifts.
-±5 cm / ±15°: 0.67 cm, 20/20. Off: 0.59 cm, yaw starting to be learned, 20/20. At a few thousand CPU steps the
-augmentation costs more than it gives; the paper preset keeps RVT's ranges for its 25 K-step GPU schedule.
+The small recipe is measured, not argued (``docs/learning.md``; ``RESULTS.md`` "Learning" from
+``python -m benchmarks.bench_learning``): the previous small preset (lr 3e-3, trust ratio on every tensor, ±12.5 cm
+/ ±45° augmentation) underfit and repeated the grasp keyframe; lr 1e-2 with the trust-ratio exemption and without
+augmentation lifts the cube in every held-out episode after 600 steps; ReLU heads died at lr 1e-2 on Lift + Stack
+(gripper at chance for 1500 steps), LeakyReLU heads learned. The paper preset keeps RVT's augmentation and ReLU
+heads for its 25 K-step GPU schedule.
 
 ``paper`` has 38.26 M parameters with the contrastive heads and 36.03 M at inference (with 77 x 512 CLIP tokens;
 the default MiniLM text encoder's 384-d tokens make it 0.34 % smaller).

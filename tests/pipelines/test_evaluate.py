@@ -54,6 +54,13 @@ def test_failure_reasons(trace, reason):
     assert failure_reason(_result(trace), max_keyframes=12) == reason
 
 
+def test_doing_the_other_instruction_is_named_before_the_trace():
+    result = _result([_step(1, GRASP, 0.0, closed=True, gap=0.04), _step(2, LIFT, 1.0, opened=True)])
+    result.other_variation = "green_on_red"
+    assert failure_reason(result, 12) == "wrong object: did green_on_red"
+    assert _failure_kind(failure_reason(result, 12)) == "wrong object"
+
+
 def test_success_and_errors():
     assert failure_reason(_result([_step(1, LIFT)], success=True), 12) is None
     assert (
@@ -77,3 +84,25 @@ def test_summary_counts_failure_kinds(tmp_path):
     row = summary["variations"][0]
     assert row["successes"] == 1 and row["failures"] == {"grasp missed": 2}
     assert "grasp missed 2" in markdown_table(summary)
+
+
+def test_the_other_stacking_order_is_recognised_in_real_robosuite():
+    """The green-on-red episode whose robot stacked red on green (the red-on-green expert, same seed and scene):
+    its success check fails and sigma-eval names the variation it did instead."""
+    import numpy as np
+
+    from pipelines.evaluate import other_variation_done
+    from sigma_data.control import EnvDriver
+    from sigma_data.sim_env import SigmaRobosuiteEnv
+    from sigma_data.tasks import get_task, get_variation
+
+    env = SigmaRobosuiteEnv("stack:green_on_red", cameras=("agentview",), image_size=32)
+    try:
+        env.reset(seed=0)
+        assert other_variation_done(env) is None  # nothing stacked yet
+        task = get_task("stack")
+        task.expert(EnvDriver(env.env), get_variation(task, "red_on_green"), np.random.default_rng(0))
+        assert not task.success(env.env, env.variation)
+        assert other_variation_done(env) == "red_on_green"
+    finally:
+        env.close()
