@@ -67,7 +67,7 @@ class LearningBenchConfig:
     # Recipe runs (names from RECIPES) and demonstration counts for the small preset (the full set is the
     # "small" recipe row; [] skips the sweep).
     recipes: list[str] = field(default_factory=lambda: list(RECIPES))
-    demos: list[int] = field(default_factory=lambda: [5, 10, 20])
+    demos: list[int] = field(default_factory=lambda: [10, 20])
     # Closed-loop episodes per run (seeds from 100000) and keyframes per episode.
     eval_episodes: int = 20
     max_keyframes: int = 12
@@ -224,8 +224,9 @@ def markdown(cfg: LearningBenchConfig, recipes: list[dict], demos: list[dict]) -
     return text
 
 
-def plot(recipes: list[dict], demos: list[dict], path: Path) -> None:
-    """Held-out translation error against step per run, and success against demonstrations."""
+def plot(recipes: list[dict], demos: list[dict], path: Path, cfg_episodes: int) -> None:
+    """Held-out translation error against step per run, and success against demonstrations (the "small" recipe
+    row is the point at ``cfg_episodes``)."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -244,7 +245,8 @@ def plot(recipes: list[dict], demos: list[dict], path: Path) -> None:
         ax.grid(alpha=0.3)
     axes[0].legend(fontsize=7)
     if demos:
-        pts = sorted((r["demos"], _row_numbers(r)) for r in demos)
+        full = [(cfg_episodes, _row_numbers(r)) for r in recipes if r["name"] == "small"]
+        pts = sorted([(r["demos"], _row_numbers(r)) for r in demos] + full, key=lambda p: p[0])
         xs = [d for d, _ in pts]
         ys = [n["successes"] / n["episodes"] for _, n in pts]
         err = [
@@ -253,6 +255,7 @@ def plot(recipes: list[dict], demos: list[dict], path: Path) -> None:
         ]
         axes[2].errorbar(xs, ys, yerr=err, marker="o", capsize=3)
         axes[2].set_xscale("log")
+        axes[2].minorticks_off()
         axes[2].set_xticks(xs, [str(x) for x in xs])
     axes[2].set_title("closed-loop success vs demonstrations (95% CI)", fontsize=10)
     axes[2].set_ylim(-0.05, 1.05)
@@ -290,7 +293,7 @@ def main(argv: list[str] | None = None) -> int:
     if cfg.publish:
         out = Path(cfg.results_dir or RESULTS_DIR)
         out.mkdir(parents=True, exist_ok=True)
-        plot(recipes, demos, out / "learning_curves.png")
+        plot(recipes, demos, out / "learning_curves.png", cfg.episodes)
         notes = "![held-out error per step and success per demonstrations](benchmarks/results/learning_curves.png)"
         data = {
             "recipes": [
@@ -308,12 +311,12 @@ def main(argv: list[str] | None = None) -> int:
             notes=notes,
             results_dir=out,
         )
-    best = max(recipes + demos, key=lambda r: _row_numbers(r)["successes"], default=None)
-    if best is not None:
-        n = _row_numbers(best)
+    last = next((r for r in recipes if r["name"] == "small"), recipes[-1] if recipes else None)
+    if last is not None:
+        n = _row_numbers(last)
         print(
-            f"bench_learning: {len(recipes)} recipes, {len(demos)} demo counts; best {best['name']} "
-            f"{n['successes']}/{n['episodes']} -> {cfg.output_dir}"
+            f"bench_learning: {len(recipes)} recipes, {len(demos)} demo counts; {last['name']}: held-out "
+            f"{n['held_cm']:.2f} cm, {n['successes']}/{n['episodes']} episodes -> {cfg.output_dir}"
         )
     return 0
 

@@ -9,7 +9,7 @@ silently dropped; a benchmark that fails is reported with its exit status and co
 Numbers come only from those runs.
 
     sigma-results                                  # collect, loader, renderer, policy (~30 min on 2 CPU cores)
-    sigma-results --include_slow true              # also experts (~45 min) and the ablation (~1 h)
+    sigma-results --include_slow true              # also experts (~45 min), learning (~45 min), ablation (~1 h)
     sigma-results --stitch_only true               # run nothing, only rebuild RESULTS.md
     sigma-results --only loader,policy             # comma-separated names (also --skip)
     sigma-results --only loader --extra_args '{"loader": "--samples 5"}'   # flags appended to a command
@@ -60,7 +60,7 @@ BENCHMARKS: tuple[Benchmark, ...] = (
         slow=True,
         takes_results_dir=False,
     ),
-    # ~45 min: 7 lerobot-train runs of 600 steps, each diagnosed and evaluated closed loop (20 episodes).
+    # ~40 min: 6 lerobot-train runs of 600 steps, each diagnosed and evaluated closed loop (20 episodes).
     Benchmark(
         "learning",
         "Learning: the small recipe, per-head errors and closed-loop success",
@@ -203,7 +203,7 @@ def stitch(results_dir: Path, failures: dict[str, tuple[int, str]] | None = None
         "run. Absolute times depend on the machine and its load: compare ratios, or runs on the same machine.",
         "",
         "Regenerate with one command: `sigma-results` (the fast benchmarks, ~30 min on 2 CPU cores, then this file);",
-        "`sigma-results --include_slow true` also re-runs the expert and ablation runs; `sigma-results "
+        "`sigma-results --include_slow true` also re-runs the expert, learning and ablation runs; `sigma-results "
         "--stitch_only true` only rebuilds this file from `benchmarks/results/`.",
         "",
         f"Stitched on: {machine_description()}; {time.strftime('%Y-%m-%d')}.",

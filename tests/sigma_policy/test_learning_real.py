@@ -69,6 +69,11 @@ def _box() -> dict:
 
 
 @pytest.mark.slow
+@pytest.mark.xfail(
+    strict=True,
+    reason="not yet: after 400 steps 31% of draws within 10° (chance ~22%); the small recipe trains without "
+    "augmentation for this reason (docs/learning.md). Strict: this fails loudly once rotation is learned.",
+)
 def test_rotation_is_learnable_under_yaw_augmentation(tmp_path):
     """With ±45° yaw augmentation every training sample shows the scene turned about its target and a target yaw
     turned with it; the rotation head must read the turn from the rendered views. After training, on fresh
