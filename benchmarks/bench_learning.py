@@ -28,6 +28,8 @@ from pathlib import Path
 
 import draccus
 
+from sigma_data.cameras import DEFAULT_CAMERAS
+
 os.environ.setdefault("HF_HUB_OFFLINE", "1")
 
 PREVIOUS_AUG = ["--policy.aug_translation_range=0.125", "--policy.aug_yaw_range_deg=45"]
@@ -55,9 +57,7 @@ class LearningBenchConfig:
     # Training demonstrations (seeds from 0) and held-out demonstrations (seeds from 50000) per variation.
     episodes: int = 40
     heldout_episodes: int = 20
-    cameras: list[str] = field(
-        default_factory=lambda: ["agentview", "frontview", "birdview", "robot0_eye_in_hand"]
-    )
+    cameras: list[str] = field(default_factory=lambda: list(DEFAULT_CAMERAS))
     image_size: int = 64
     # Training budget of every run; checkpoints saved (and diagnosed) this many times per run.
     steps: int = 600

@@ -34,6 +34,8 @@ from pathlib import Path
 
 import draccus
 
+from sigma_data.cameras import DEFAULT_CAMERAS
+
 os.environ.setdefault("HF_HUB_OFFLINE", "1")
 
 ARMS: dict[str, list[str]] = {
@@ -51,9 +53,7 @@ class AblationConfig:
     tasks: list[str] = field(default_factory=lambda: ["stack", "pick_place"])
     # Expert seeds collected per variation (failed expert episodes are dropped), and camera set-up.
     episodes: int = 10
-    cameras: list[str] = field(
-        default_factory=lambda: ["agentview", "frontview", "birdview", "robot0_eye_in_hand"]
-    )
+    cameras: list[str] = field(default_factory=lambda: list(DEFAULT_CAMERAS))
     image_size: int = 64
     # The training budget, identical for both arms.
     preset: str = "small"

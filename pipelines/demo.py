@@ -27,6 +27,8 @@ from pathlib import Path
 
 import draccus
 
+from sigma_data.cameras import DEFAULT_CAMERAS
+
 os.environ.setdefault("HF_HUB_OFFLINE", "1")
 
 
@@ -48,9 +50,7 @@ class DemoConfig:
     # Training steps and batch size of the small policy.
     steps: int = 1500
     batch_size: int = 8
-    cameras: list[str] = field(
-        default_factory=lambda: ["agentview", "frontview", "birdview", "robot0_eye_in_hand"]
-    )
+    cameras: list[str] = field(default_factory=lambda: list(DEFAULT_CAMERAS))
     image_size: int = 64
     workers: int = 2
 

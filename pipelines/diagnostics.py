@@ -222,23 +222,6 @@ def keyframe_sets(cfg: DiagnoseConfig, checkpoint: Path) -> list[KeyframeSet]:
 # ---------------------------------------------------------------------------------------------- predict
 
 
-def load_checkpoint(checkpoint: Path, device: str = "cpu") -> tuple[Any, Any]:
-    """A sigma policy and its saved pre-processor (eval mode)."""
-    from lerobot.policies.factory import make_pre_post_processors
-
-    from sigma_policy.modeling_sigma import SigmaPolicy
-
-    policy = SigmaPolicy.from_pretrained(str(checkpoint))
-    policy.config.device = device
-    policy.to(device).eval()
-    pre, _ = make_pre_post_processors(
-        policy.config,
-        pretrained_path=str(checkpoint),
-        preprocessor_overrides={"device_processor": {"device": device}},
-    )
-    return policy, pre
-
-
 def predict_rows(policy: Any, pre: Any, kf: KeyframeSet, batch_size: int) -> tuple[np.ndarray, np.ndarray]:
     """(predicted, recorded) actions ``(N, 9)`` for the rows of ``kf``."""
     import torch
@@ -397,6 +380,8 @@ def run_diagnose(cfg: DiagnoseConfig) -> dict[str, Any]:
     """Diagnose one checkpoint or every checkpoint of a run; write the report; return it."""
     from tqdm import tqdm
 
+    from pipelines.evaluate import load_policy
+
     if (cfg.run is None) == (cfg.checkpoint is None):
         raise ValueError("give exactly one of --run (a lerobot-train output dir) or --checkpoint")
     ckpts = run_checkpoints(cfg.run) if cfg.run is not None else [(-1, Path(cfg.checkpoint))]
@@ -409,7 +394,7 @@ def run_diagnose(cfg: DiagnoseConfig) -> dict[str, Any]:
         kf.swap = swap_scenes(kf)
     report: dict[str, Any] = {"checkpoints": [], "sets": {s.name: len(s.indices) for s in sets}}
     for step, ckpt in tqdm(ckpts, desc="sigma-diagnose", unit="checkpoint"):
-        policy, pre = load_checkpoint(ckpt, cfg.device)
+        policy, pre, _ = load_policy(ckpt, cfg.device)
         report["checkpoints"].append(
             {"step": step, "path": str(ckpt), **diagnose_checkpoint(policy, pre, sets, cfg.batch_size)}
         )

@@ -97,11 +97,11 @@ REPEAT_TOLERANCE_M = 0.01
 def failure_reason(result: EpisodeResult, max_keyframes: int) -> str | None:
     """A short, task-independent reason for a failed episode, from its keyframe trace.
 
-    ``error: ...`` (an exception), ``wrong object: did <variation>`` (the scene ended in another variation's
-    success state: the policy did the other instruction), ``grasp missed at keyframe k`` (the gripper closed on nothing: finger gap
-    below 1 cm), ``keyframe k not reached (stalled|budget)`` (the executor could not get the arm there),
-    ``dropped at keyframe k`` (something was held, then the gripper opened away from success), ``repeats
-    keyframe k`` (the next keyframe is the same pose and gripper command: stuck), and
+    In order of precedence: ``error: ...`` (an exception); ``wrong object: did <variation>`` (the scene ended in
+    another variation's success state: the policy did the other instruction); ``grasp missed at keyframe k`` (the
+    gripper closed on nothing: finger gap below 1 cm); ``dropped at keyframe k`` (something was held, then the
+    gripper opened away from success); ``repeats keyframe k`` (the next keyframe is the same pose and gripper
+    command: stuck); ``keyframe k not reached (stalled|budget)`` (the executor could not get the arm there);
     ``timeout after N keyframes`` (every move converged but the task never succeeded).
     """
     if result.success:
@@ -178,26 +178,34 @@ def plan_jobs(cfg: EvalConfig) -> list[Job]:
     return [Job(t, v, s) for s in seeds for t, v in pairs]
 
 
+def load_policy(checkpoint: Path | str, device: str = "cpu") -> tuple[Any, Any, Any]:
+    """A saved sigma checkpoint on ``device`` in eval mode, with its saved pre- and post-processor."""
+    from lerobot.policies.factory import make_pre_post_processors
+
+    from sigma_policy.modeling_sigma import SigmaPolicy
+
+    policy = SigmaPolicy.from_pretrained(str(checkpoint))
+    policy.config.device = device
+    policy.to(device).eval()
+    pre, post = make_pre_post_processors(
+        policy.config,
+        pretrained_path=str(checkpoint),
+        preprocessor_overrides={"device_processor": {"device": device}},
+    )
+    return policy, pre, post
+
+
 class _Worker:
     """One process: a policy copy, its processors, and a cached environment per variation."""
 
     def __init__(self, cfg: EvalConfig):
         import torch
-        from lerobot.policies.factory import make_pre_post_processors
 
         import sigma_data.lerobot_env  # noqa: F401  (registers the env type, as the plugin shim does)
-        from sigma_policy.modeling_sigma import SigmaPolicy
 
         torch.set_num_threads(max(1, (os.cpu_count() or 1) // max(1, cfg.workers)))
         self.cfg = cfg
-        self.policy = SigmaPolicy.from_pretrained(str(cfg.checkpoint))
-        self.policy.config.device = cfg.device
-        self.policy.to(cfg.device).eval()
-        self.pre, self.post = make_pre_post_processors(
-            self.policy.config,
-            pretrained_path=str(cfg.checkpoint),
-            preprocessor_overrides={"device_processor": {"device": cfg.device}},
-        )
+        self.policy, self.pre, self.post = load_policy(cfg.checkpoint, cfg.device)
         self.cameras = tuple(self.policy.config.camera_names())
         self.image_size = self._image_size()
         self.envs: dict[str, Any] = {}

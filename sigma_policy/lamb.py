@@ -104,13 +104,14 @@ class Lamb(torch.optim.Optimizer):
         if group["weight_decay"] != 0:
             torch._foreach_add_(update, params, alpha=group["weight_decay"])
 
-        weight_norm = torch.stack(torch._foreach_norm(params)).clamp(0, TRUST_CLAMP)
-        update_norm = torch.stack(torch._foreach_norm(update))
-        trust = torch.where(
-            (weight_norm > 0) & (update_norm > 0), weight_norm / update_norm, torch.ones_like(weight_norm)
-        )
-        if not group.get("trust_ratio", True):
-            trust = torch.ones_like(weight_norm)
+        if group.get("trust_ratio", True):  # absent in groups saved before the flag existed
+            weight_norm = torch.stack(torch._foreach_norm(params)).clamp(0, TRUST_CLAMP)
+            update_norm = torch.stack(torch._foreach_norm(update))
+            trust = torch.where(
+                (weight_norm > 0) & (update_norm > 0), weight_norm / update_norm, torch.ones_like(weight_norm)
+            )
+        else:
+            trust = torch.ones(len(params), device=params[0].device, dtype=params[0].dtype)
         for p, u, scale in zip(params, update, (trust * -group["lr"]).unbind(), strict=True):
             p.addcmul_(u, scale.to(p.dtype))  # one launch per parameter, no host sync
 

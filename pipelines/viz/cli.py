@@ -118,15 +118,10 @@ def run_policy_view(cfg: PolicyViewConfig) -> str:
     import torch
     from lerobot.datasets import LeRobotDataset, LeRobotDatasetMetadata
     from lerobot.datasets.factory import resolve_delta_timestamps
-    from lerobot.policies.factory import make_pre_post_processors
     from torch.utils.data import default_collate
 
+    from pipelines.evaluate import load_policy
     from pipelines.viz.policy import DEFAULT_VIEW_NAMES, log_policy_frame, policy_frame_outputs
-
-    try:
-        from sigma_policy.modeling_sigma import SigmaPolicy
-    except ImportError as err:
-        raise ImportError(f"sigma-viz policy needs sigma_policy.modeling_sigma.SigmaPolicy: {err}") from err
 
     if cfg.checkpoint is None or cfg.root is None:
         raise ValueError("sigma-viz policy: --checkpoint and --root are required")
@@ -134,9 +129,7 @@ def run_policy_view(cfg: PolicyViewConfig) -> str:
         raise FileNotFoundError(
             f"{cfg.checkpoint}: checkpoint directory not found (pass a local pretrained_model dir)"
         )
-    policy = SigmaPolicy.from_pretrained(str(cfg.checkpoint))
-    policy.to(cfg.device)
-    policy.eval()
+    policy, preprocessor, _ = load_policy(cfg.checkpoint, cfg.device)
 
     repo_id = cfg.repo_id or f"local/{Path(cfg.root).name}"
     meta = LeRobotDatasetMetadata(repo_id, root=cfg.root)
@@ -161,11 +154,6 @@ def run_policy_view(cfg: PolicyViewConfig) -> str:
         raise ValueError(
             f"{cfg.root}: row {cfg.frame_index} of episode {cfg.episode_index} is frame {item['frame_index']}"
         )
-    preprocessor, _ = make_pre_post_processors(
-        policy.config,
-        pretrained_path=str(cfg.checkpoint),
-        preprocessor_overrides={"device_processor": {"device": cfg.device}},
-    )
     batch = preprocessor(default_collate([item]))
     with torch.no_grad():
         outputs = policy_frame_outputs(policy, batch)

@@ -84,9 +84,9 @@ def heatmap_to_rgba(heatmap: np.ndarray, max_alpha: float = 0.85) -> np.ndarray:
 
 def quaternion_angle_deg(q1_xyzw: np.ndarray, q2_xyzw: np.ndarray) -> float:
     """Geodesic angle between two unit quaternions (xyzw), degrees in [0, 180]; sign-invariant."""
-    q1 = q1_xyzw / np.linalg.norm(q1_xyzw)
-    q2 = q2_xyzw / np.linalg.norm(q2_xyzw)
-    return float(np.degrees(2 * np.arccos(np.clip(abs(float(np.dot(q1, q2))), 0.0, 1.0))))
+    from pipelines.diagnostics import geodesic_deg
+
+    return float(geodesic_deg(np.asarray(q1_xyzw)[None], np.asarray(q2_xyzw)[None])[0])
 
 
 def _log_pose(

@@ -110,12 +110,13 @@ def test_a_missing_dataset_is_named(tmp_path):
 
 def test_checkpoint_prediction_matches_select_action(tmp_path):
     """What sigma-diagnose scores is what the policy acts on in closed loop (same pre-processor, same path)."""
-    from pipelines.diagnostics import KeyframeSet, load_checkpoint, predict_rows
+    from pipelines.diagnostics import KeyframeSet, predict_rows
+    from pipelines.evaluate import load_policy
 
     root = write_tiny_keyframe_dataset(tmp_path / "tiny", episodes=1, size=32)
     ckpt = tmp_path / "ckpt"
     _save_checkpoint(root, ckpt, [0], 0)
-    policy, pre = load_checkpoint(ckpt)
+    policy, pre, _ = load_policy(ckpt)
     ds = open_dataset(root)
     pred, true = predict_rows(policy, pre, KeyframeSet("train", ds, [0, 1], np.array([0, 1])), batch_size=2)
     for i in (0, 1):
@@ -130,7 +131,8 @@ def test_checkpoint_prediction_matches_select_action(tmp_path):
 
 def test_instruction_swap_on_one_scene_under_two_instructions(tmp_path):
     """The "language" tiny dataset is one scene under two instructions; a sidecar gives both the same seed."""
-    from pipelines.diagnostics import KeyframeSet, instruction_swap, load_checkpoint, swap_scenes
+    from pipelines.diagnostics import KeyframeSet, instruction_swap, swap_scenes
+    from pipelines.evaluate import load_policy
 
     root = write_tiny_keyframe_dataset(tmp_path / "lang", episodes=2, size=32, scenes="language")
     ds = open_dataset(root)
@@ -147,7 +149,7 @@ def test_instruction_swap_on_one_scene_under_two_instructions(tmp_path):
     assert len(scenes) == 1 and scenes[0].instructions == instructions
     assert np.linalg.norm(scenes[0].targets[0] - scenes[0].targets[1]) > 0.1  # two different cubes
     _save_checkpoint(root, tmp_path / "ckpt", [0, 1], 0)
-    policy, pre = load_checkpoint(tmp_path / "ckpt")
+    policy, pre, _ = load_policy(tmp_path / "ckpt")
     swap = instruction_swap(policy, pre, kf, scenes)
     assert swap["swap_scenes"] == 1 and swap["swap_nearest"] in (0.0, 0.5, 1.0)
     assert swap["swap_trans_cm_median"] > 0
