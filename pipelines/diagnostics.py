@@ -179,13 +179,16 @@ def goal_rows(
     return rows, steps
 
 
-def open_dataset(root: Path) -> Any:
-    """A sigma keyframe dataset read by stock LeRobot (depth in LeRobot's default unit, mm)."""
+def open_dataset(root: Path, depth_unit: str = "mm") -> Any:
+    """A sigma keyframe dataset read by stock LeRobot, depth in ``depth_unit`` (the checkpoint's
+    ``policy.depth_unit``; LeRobot's default is mm)."""
     from lerobot.datasets.lerobot_dataset import LeRobotDataset
 
     if not (Path(root) / "meta" / "info.json").exists():
         raise FileNotFoundError(f"{root} is not a LeRobot dataset (no meta/info.json)")
-    return LeRobotDataset(f"local/{Path(root).name}", root=root, video_backend="pyav")
+    return LeRobotDataset(
+        f"local/{Path(root).name}", root=root, video_backend="pyav", depth_output_unit=depth_unit
+    )
 
 
 def trained_episodes(checkpoint: Path) -> tuple[Path | None, list[int] | None]:
@@ -204,11 +207,12 @@ def keyframe_sets(cfg: DiagnoseConfig, checkpoint: Path) -> list[KeyframeSet]:
     root = cfg.root or root
     if root is None:
         raise ValueError(f"no --root given and {checkpoint}/train_config.json names no dataset root")
-    train_ds = open_dataset(root)
+    depth_unit = json.loads((Path(checkpoint) / "config.json").read_text()).get("depth_unit", "mm")
+    train_ds = open_dataset(root, depth_unit)
     rows, steps = goal_rows(train_ds, episodes, cfg.max_frames)
     sets = [KeyframeSet("train", train_ds, rows, np.asarray(steps), episodes)]
     if cfg.heldout_root is not None:
-        ho = open_dataset(cfg.heldout_root)
+        ho = open_dataset(cfg.heldout_root, depth_unit)
         rows, steps = goal_rows(ho, None, cfg.max_frames)
         sets.append(KeyframeSet("heldout", ho, rows, np.asarray(steps)))
     elif episodes is not None:
