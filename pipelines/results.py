@@ -3,13 +3,13 @@
 Every benchmark writes a Markdown fragment (with the exact command and the machine) and a JSON file of raw
 numbers to ``benchmarks/results/<name>.*`` (:func:`pipelines.reporting.write_report`). This command runs the
 chosen benchmarks one after the other as subprocesses from the repository root, then stitches the fragments, in
-a fixed order (experts, ablation, learning, collect, loader, renderer, policy), under a short header into ``RESULTS.md``.
+a fixed order (experts, ablation, compare, learning, collect, loader, renderer, policy), under a short header into ``RESULTS.md``.
 A fragment that does not exist yet is shown as "not measured yet" with the command that produces it, never
 silently dropped; a benchmark that fails is reported with its exit status and command, and the others still run.
 Numbers come only from those runs.
 
     sigma-results                                  # collect, loader, renderer, policy (~30 min on 2 CPU cores)
-    sigma-results --include_slow true              # also experts (~45 min), learning (~45 min), ablation (~1 h)
+    sigma-results --include_slow true              # also experts (~45 min), learning (~45 min), ablation (~1 h), compare (~50 min)
     sigma-results --stitch_only true               # run nothing, only rebuild RESULTS.md
     sigma-results --only loader,policy             # comma-separated names (also --skip)
     sigma-results --only loader --extra_args '{"loader": "--samples 5"}'   # flags appended to a command
@@ -57,6 +57,14 @@ BENCHMARKS: tuple[Benchmark, ...] = (
         "ablation",
         "Contrastive-loss ablation",
         "sigma-ablate --publish true",
+        slow=True,
+        takes_results_dir=False,
+    ),
+    # ~50 min: sigma, ACT and Diffusion Policy, ~11 min of lerobot-train each, 20 evaluation episodes each.
+    Benchmark(
+        "compare",
+        "Σ-agent vs stock LeRobot policies (same demonstrations, same evaluation seeds)",
+        "sigma-compare --output_dir outputs/compare --tasks '[lift]' --episodes 30 --eval_episodes 20 --publish true",
         slow=True,
         takes_results_dir=False,
     ),

@@ -1,4 +1,4 @@
-"""Run the stock ``lerobot-train`` on a sigma keyframe dataset (used by the demo and the ablation).
+"""Run the stock ``lerobot-train`` (used by the demo, the ablation and the policy comparison).
 
 Training always goes through LeRobot's own CLI in a subprocess, exactly as a user would run it, so what the
 pipelines measure is what ``lerobot-train --policy.type=sigma`` does.
@@ -17,14 +17,18 @@ from pathlib import Path
 
 @dataclass
 class TrainRun:
-    """One ``lerobot-train`` run: its inputs, and where its checkpoint and log go."""
+    """One ``lerobot-train`` run: its inputs, and where its checkpoint and log go.
+
+    ``policy_type="sigma"`` trains sigma on a keyframe dataset (``preset`` and ``scene_bounds`` apply); any other
+    type is a stock LeRobot policy (``act``, ``diffusion``...) configured only by ``extra_args``."""
 
     dataset_root: Path
     output_dir: Path
     steps: int
     batch_size: int
-    scene_bounds: tuple[float, ...]
+    scene_bounds: tuple[float, ...] | None = None
     preset: str = "small"
+    policy_type: str = "sigma"
     device: str = "cpu"
     seed: int = 0
     job_name: str = "sigma"
@@ -38,15 +42,18 @@ class TrainRun:
         return self.output_dir / "checkpoints" / "last" / "pretrained_model"
 
     def command(self) -> list[str]:
-        box = ",".join(f"{v:g}" for v in self.scene_bounds)
+        policy = [f"--policy.type={self.policy_type}", f"--policy.device={self.device}"]
+        if self.policy_type == "sigma":
+            policy.append(f"--policy.preset={self.preset}")
+            if self.scene_bounds is not None:
+                policy.append(f"--policy.scene_bounds=[{','.join(f'{v:g}' for v in self.scene_bounds)}]")
+        else:
+            policy.append("--policy.push_to_hub=false")
         return [
             str(Path(sys.executable).with_name("lerobot-train")),
-            "--policy.type=sigma",
-            f"--policy.preset={self.preset}",
-            f"--policy.device={self.device}",
-            f"--policy.scene_bounds=[{box}]",
+            *policy,
             f"--dataset.root={self.dataset_root}",
-            "--dataset.repo_id=local/sigma_keyframe",
+            f"--dataset.repo_id=local/{Path(self.dataset_root).name}",
             "--dataset.video_backend=pyav",
             f"--output_dir={self.output_dir}",
             f"--job_name={self.job_name}",

@@ -31,6 +31,7 @@ from __future__ import annotations
 
 import atexit
 import contextlib
+import dataclasses
 import hashlib
 import json
 import multiprocessing as mp
@@ -84,6 +85,9 @@ class CollectConfig:
     dense: bool = True
     # Write the keyframe dataset (decision points; action = next keyframe pose).
     keyframe: bool = True
+    # Store depth in the dense dataset. false: RGB-only dense dataset that stock LeRobot image policies (ACT,
+    # Diffusion Policy) train on as it is (the keyframe dataset always keeps depth).
+    dense_depth: bool = True
     # Dense camera storage: video (RGB AV1, depth 12-bit lossless HEVC) or PNG/TIFF images.
     dense_video: bool = True
     # Keyframe camera storage: PNG/TIFF images by default (exact depth) or video.
@@ -148,6 +152,7 @@ class CollectConfig:
             "width",
             "dense",
             "keyframe",
+            "dense_depth",
             "dense_video",
             "keyframe_video",
             "augment_every",
@@ -486,7 +491,7 @@ def collect_shard(
                     shard_dir / "dense",
                     use_videos=cfg.dense_video,
                     repo_id=f"{cfg.repo_id}_dense",
-                    **common,
+                    **(common | {"layout": dataclasses.replace(layout, depth=cfg.dense_depth)}),
                 )
             )
         if cfg.keyframe:

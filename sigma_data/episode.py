@@ -9,8 +9,11 @@ the last frame is the final state, and its action is a hold (zero arm motion, la
   for rendering and only stored frames are rendered;
 * ``images``: per camera, stored frames (:class:`CameraStream`), e.g. from a real robot or an image HDF5.
 
-Conventions (the data contract, ``shared/DESIGN.md``): positions in metres, world frame; quaternions xyzw
-with w >= 0; extrinsics camera-to-world 4x4 in OpenCV axes (x right, y down, z forward); depth metric
+Conventions (the data contract, ``shared/DESIGN.md``): positions in metres, world frame; quaternions xyzw, unit;
+keyframe poses (the keyframe dataset's action) with w >= 0; the state's orientation ``observation.state[3:7]``
+continuous in time (:func:`continuous_quats`: w >= 0 at frame 0, then each frame on the hemisphere of the one
+before, so a policy never sees q jump to -q between two frames; with the gripper pointing down w is near 0 and
+the w >= 0 rule flipped it several times per episode); extrinsics camera-to-world 4x4 in OpenCV axes (x right, y down, z forward); depth metric
 z-depth along the optical axis, metres; images upright (row 0 at the top).
 """
 
@@ -55,6 +58,18 @@ def canonical_quat(quat_xyzw: np.ndarray) -> np.ndarray:
     q = np.asarray(quat_xyzw, dtype=np.float64)
     q = q / np.linalg.norm(q, axis=-1, keepdims=True)
     return np.where(q[..., 3:4] < 0, -q, q)
+
+
+def continuous_quats(quats_xyzw: np.ndarray) -> np.ndarray:
+    """(T, 4) xyzw quaternions -> the same rotations, unit, w >= 0 at frame 0 and every later frame's sign chosen
+    so that its dot product with the previous frame's is >= 0 (hemisphere continuity; the sign of ``q`` and
+    ``-q`` is the only thing that changes)."""
+    q = canonical_quat(quats_xyzw)
+    if len(q) < 2:
+        return q
+    flips = np.einsum("ij,ij->i", q[1:], q[:-1]) < 0  # does frame t's canonical sign oppose frame t-1's?
+    sign = np.concatenate([[1.0], np.where(np.cumprod(np.where(flips, -1.0, 1.0)) < 0, -1.0, 1.0)])
+    return q * sign[:, None]
 
 
 @dataclass(frozen=True)
@@ -112,7 +127,8 @@ class Episode:
     Fields:
         task, variation: registry names (``"stack"``, ``"red_on_green"``); free text for other sources.
         instruction: the natural-language instruction (LeRobot's per-frame ``task``).
-        states: (T, 10) float32 ``observation.state`` (:data:`STATE_NAMES`).
+        states: (T, 10) float32 ``observation.state`` (:data:`STATE_NAMES`); the quaternion is made continuous
+            in time on construction (:func:`continuous_quats`).
         actions: (T, 7) float32 executed OSC_POSE deltas ``[dx, dy, dz, rx, ry, rz, grip]`` (+1 close).
         keyframes: sorted by index, unique, the last one at frame ``T - 1``.
         joint_velocities: (T, n_arm) rad/s, for the keyframe heuristic (optional).
@@ -135,9 +151,10 @@ class Episode:
     provenance: dict[str, Any] = field(default_factory=dict)
 
     def __post_init__(self) -> None:
-        self.states = np.asarray(self.states, dtype=np.float32)
+        self.states = np.array(self.states, dtype=np.float32)
         self.actions = np.asarray(self.actions, dtype=np.float32)
         self.validate()
+        self.states[:, 3:7] = continuous_quats(self.states[:, 3:7])
 
     @property
     def name(self) -> str:
@@ -163,6 +180,10 @@ class Episode:
         for name, arr in (("states", self.states), ("actions", self.actions)):
             if not np.isfinite(arr).all():
                 raise ValueError(f"{self.name}: {name} contain NaN or inf")
+        norm = np.linalg.norm(self.states[:, 3:7], axis=1)
+        if (np.abs(norm - 1) > 1e-2).any():
+            t = int(np.flatnonzero(np.abs(norm - 1) > 1e-2)[0])
+            raise ValueError(f"{self.name}: states[{t}, 3:7] (eef quaternion) has norm {norm[t]:.4f}, not 1")
         idx = self.keyframe_indices
         if not idx or idx != sorted(set(idx)) or idx[0] < 1 or idx[-1] != T - 1:
             raise ValueError(

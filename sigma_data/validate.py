@@ -17,6 +17,8 @@ Checks (names as printed):
   the episode, and every gripper change within ``gripper_tolerance`` frames of a keyframe.
 * ``goals.*`` (keyframe): each action is the next frame's pose (the goal link stays inside the episode),
   quaternions unit with w >= 0, flags binary.
+* ``state.continuity``: the state's quaternion never jumps to the other hemisphere between two frames of an
+  episode (dot product of consecutive ``observation.state[3:7]`` >= 0; see ``sigma_data/episode.py``).
 * ``language.*``: every frame has an instruction; episodes per instruction; instructions found in one split only.
 """
 
@@ -193,8 +195,9 @@ def check_structure(chk: _Checker, features: dict, cameras: list[str], kind: str
     if not cameras:
         chk.add("structure", "error", "no RGB camera features observation.images.<cam>")
         ok = False
-    for cam in cameras:
-        key = f"observation.images.{cam}_depth"
+    depth_keys = [f"observation.images.{cam}_depth" for cam in cameras]
+    rgb_only = kind == "dense" and not any(key in features for key in depth_keys)
+    for key in [] if rgb_only else depth_keys:
         if key not in features:
             chk.add("structure", "error", "missing depth feature", field=key)
             ok = False
@@ -202,7 +205,8 @@ def check_structure(chk: _Checker, features: dict, cameras: list[str], kind: str
             chk.add("structure", "error", "depth feature lacks info.is_depth_map=True", field=key)
             ok = False
     if ok:
-        chk.add("structure", "ok", f"{kind} dataset, {len(cameras)} RGB-D cameras with calibration")
+        what = "RGB cameras (RGB-only dense: no depth)" if rgb_only else "RGB-D cameras"
+        chk.add("structure", "ok", f"{kind} dataset, {len(cameras)} {what} with calibration")
     return ok
 
 
@@ -301,6 +305,8 @@ def check_depth(chk: _Checker, ds, features: dict, cameras: list[str], bounds: d
     lo, hi = cfg.depth_range
     for cam in cameras:
         key = f"observation.images.{cam}_depth"
+        if key not in features:  # RGB-only dense dataset (check_structure allowed it)
+            continue
         unit = features[key].get("info", {}).get("depth_unit")
         if unit not in (None, "m"):
             chk.add("depth.unit", "error", f"depth stored in {unit!r}, the contract says metres", field=key)
@@ -459,6 +465,31 @@ def check_keyframe_goals(chk: _Checker, cols: dict[str, np.ndarray], bounds: dic
             chk.add(name, "ok", "")
 
 
+def check_state_continuity(chk: _Checker, cols: dict[str, np.ndarray], bounds: dict) -> None:
+    """Consecutive frames of an episode: the eef quaternion keeps its hemisphere (q and -q are one rotation, but
+    a policy reading the state sees a jump of up to 2 per component)."""
+    q = cols["observation.state"][:, 3:7].astype(np.float64)
+    flips = 0
+    first = None
+    for ep, (start, stop) in bounds.items():
+        dots = np.einsum("ij,ij->i", q[start + 1 : stop], q[start : stop - 1])
+        bad = np.flatnonzero(dots < 0)
+        flips += len(bad)
+        if len(bad) and first is None:
+            first = (ep, int(bad[0]) + 1)
+    if first is None:
+        chk.add("state.continuity", "ok", "no quaternion sign flip inside an episode")
+    else:
+        chk.add(
+            "state.continuity",
+            "error",
+            f"{flips} quaternion sign flip(s) between consecutive frames; first at frame {first[1]} of the episode",
+            first[0],
+            first[1],
+            "observation.state[3:7]",
+        )
+
+
 def check_language(
     chk: _Checker, ds, cols: dict[str, np.ndarray], bounds: dict, report: ValidationReport
 ) -> None:
@@ -550,6 +581,7 @@ def validate_dataset(cfg: ValidateConfig) -> ValidationReport:
         check_dense_keyframes(chk, cols, bounds, cfg)
     else:
         check_keyframe_goals(chk, cols, bounds, cfg)
+    check_state_continuity(chk, cols, bounds)
     check_language(chk, ds, cols, bounds, report)
     return report
 

@@ -43,7 +43,8 @@ SIDECAR = Path("meta") / "sigma.json"
 FPS = 20
 ROBOT_TYPE = "panda"
 CONVENTIONS = {
-    "quaternion": "xyzw, w >= 0",
+    "quaternion": "xyzw, unit; keyframe actions w >= 0; observation.state continuous in time (w >= 0 at an "
+    "episode's first frame, then each frame on the previous frame's hemisphere)",
     "pose": "grip site (gripper0_right_grip_site) in the world frame, metres",
     "extrinsics": "camera-to-world 4x4, OpenCV axes (x right, y down, z forward)",
     "intrinsics": "3x3 pinhole, f = 0.5 H / tan(fovy / 2), c = (W/2, H/2); pixel centres at +0.5",
@@ -65,11 +66,15 @@ ENCODER_BACKLOG = 32
 
 @dataclass(frozen=True)
 class DatasetLayout:
-    """What every frame carries: cameras and image size (pixels)."""
+    """What every frame carries: cameras, image size (pixels) and whether depth is stored.
+
+    ``depth=False`` writes RGB-only camera features (calibration kept): stock LeRobot image policies (ACT,
+    Diffusion Policy) take every video feature as a 3-channel image and fail on a 1-channel depth stream."""
 
     cameras: tuple[str, ...]
     height: int
     width: int
+    depth: bool = True
 
 
 @dataclass(frozen=True)
@@ -114,12 +119,13 @@ def camera_features(
             "names": ["height", "width", "channels"],
             **({"info": rgb_info} if rgb_info else {}),
         }
-        feats[f"observation.images.{cam}_depth"] = {
-            "dtype": dtype,
-            "shape": (h, w, 1),
-            "names": ["height", "width", "channels"],
-            "info": {"is_depth_map": True},
-        }
+        if layout.depth:
+            feats[f"observation.images.{cam}_depth"] = {
+                "dtype": dtype,
+                "shape": (h, w, 1),
+                "names": ["height", "width", "channels"],
+                "info": {"is_depth_map": True},
+            }
         feats[f"observation.camera.{cam}.intrinsics"] = {"dtype": "float32", "shape": (3, 3), "names": None}
         feats[f"observation.camera.{cam}.extrinsics"] = {"dtype": "float32", "shape": (4, 4), "names": None}
     return feats
@@ -136,9 +142,10 @@ def _camera_frame_values(layout: DatasetLayout, views: CameraViews, where: str) 
                 f"{where}: camera '{cam}' rgb is {v.rgb.shape}, expected {(layout.height, layout.width, 3)}"
             )
         out[f"observation.images.{cam}"] = v.rgb
-        out[f"observation.images.{cam}_depth"] = v.depth.reshape(layout.height, layout.width, 1).astype(
-            np.float32
-        )
+        if layout.depth:
+            out[f"observation.images.{cam}_depth"] = v.depth.reshape(layout.height, layout.width, 1).astype(
+                np.float32
+            )
         out[f"observation.camera.{cam}.intrinsics"] = np.asarray(v.intrinsics, dtype=np.float32)
         out[f"observation.camera.{cam}.extrinsics"] = np.asarray(v.extrinsics, dtype=np.float32)
     return out
@@ -244,6 +251,7 @@ class SigmaWriter:
             "fps": FPS,
             "cameras": list(layout.cameras),
             "image_size": [layout.height, layout.width],
+            "depth": layout.depth,
             "storage": "video" if use_videos else "image",
             "depth_video_range_m": [depth_range.depth_min, depth_range.depth_max] if use_videos else None,
             "state_names": list(STATE_NAMES),

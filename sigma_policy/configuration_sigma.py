@@ -102,6 +102,8 @@ PRESETS: dict[str, dict[str, Any]] = {
         "attn_dropout": 0.1,
         "use_proprio": False,
         "head_activation": "relu",
+        "lang_film": False,
+        "heatmap_refine_px": 0,
         "aug_translation_range": 0.125,
         "aug_yaw_range_deg": 45.0,
         "optimizer_lr": 9.6e-4,
@@ -124,6 +126,8 @@ PRESETS: dict[str, dict[str, Any]] = {
         "attn_dropout": 0.0,
         "use_proprio": True,
         "head_activation": "leaky_relu",
+        "lang_film": True,
+        "heatmap_refine_px": 2,
         "aug_translation_range": 0.0,
         "aug_yaw_range_deg": 0.0,
         "optimizer_lr": 1e-2,
@@ -168,6 +172,9 @@ class SigmaConfig(PreTrainedConfig):
     num_rotation_bins: int = 72
     render_radius_px: float = 1.32
     head_activation: str | None = None  # None = from preset (paper "relu", small "leaky_relu")
+    # Instruction FiLM on the image tokens before fusion (network.LanguageFiLM; None = from preset: paper False,
+    # small True).
+    lang_film: bool | None = None
 
     # ---- paper-vs-code choices (module docstring)
     num_queries: int = 1
@@ -179,6 +186,10 @@ class SigmaConfig(PreTrainedConfig):
     logit_scale_max: float | None = None
     projection_activation: bool = True
     place_with_mean_at_eval: bool = False
+    # Sub-voxel refinement of the translation at inference: centroid of the score profiles within this many
+    # voxels of the argmax (sigma_policy/heatmap.py); 0 = the argmax voxel centre (RVT). None = from preset
+    # (paper 0, small 2).
+    heatmap_refine_px: int | None = None
     detach_heatmap_for_features: bool = True
 
     # ---- contrastive IL

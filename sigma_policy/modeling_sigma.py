@@ -23,6 +23,7 @@ for visualisation; ``select_action`` keeps the latest in ``last_prediction``.
 
 from __future__ import annotations
 
+import logging
 from contextlib import nullcontext
 from dataclasses import dataclass
 from typing import Any
@@ -90,13 +91,35 @@ class SigmaPolicy(PreTrainedPolicy):
         self.__dict__["text_encoder"] = make_text_encoder(config.text_encoder, config.text_encoder_path)
         self._lang_cache: dict[str, tuple[Tensor, Tensor]] = {}
         self.network = SigmaNetwork(
-            config.network_config(), self.text_encoder.token_dim, self.text_encoder.sentence_dim
+            config.network_config(),
+            self.text_encoder.token_dim,
+            self.text_encoder.sentence_dim,
+            self.text_encoder.max_length,
         )
         self.renderer = VirtualViewRenderer(img_size=config.img_size, radius_px=config.render_radius_px)
         self.register_buffer(
             "scene_bounds", torch.tensor(config.scene_bounds, dtype=torch.float32), persistent=False
         )
         self.last_prediction: SigmaPrediction | None = None
+
+    @classmethod
+    def _load_as_safetensor(cls, model, model_file: str, map_location: str, strict: bool):
+        """LeRobot's loader, after matching the network to what the file holds: a checkpoint saved before
+        ``lang_film`` existed (its config then resolves it from the preset) has no FiLM weights, and loading it
+        into a network with FiLM would leave that module randomly initialised (LeRobot loads non-strictly)."""
+        from safetensors import safe_open
+
+        with safe_open(model_file, "pt") as f:
+            names = f.keys()  # a safe_open handle is not iterable
+        has_film = any(k.startswith("network.lang_film.") for k in names)
+        if model.network.lang_film is not None and not has_film:
+            logging.getLogger(__name__).warning(
+                "%s has no instruction-FiLM weights (saved before policy.lang_film existed): loading without it",
+                model_file,
+            )
+            model.network.lang_film = None
+            model.config.lang_film = False
+        return super()._load_as_safetensor(model, model_file, map_location, strict)
 
     # ------------------------------------------------------------------ LeRobot API
     def get_optim_params(self):
@@ -221,7 +244,7 @@ class SigmaPolicy(PreTrainedPolicy):
         views = self._render(cloud.points, cloud.colors, bounds)
         out = self._run_network(views, self._tasks(batch, b), batch)
         trans = out.trans.float()
-        point_cube = heatmap_to_cube_point(trans, cfg.img_size)
+        point_cube = heatmap_to_cube_point(trans, cfg.img_size, refine_px=cfg.heatmap_refine_px)
         point_world = cube_to_world(point_cube, bounds)
         rot_bins = out.rot_logits.argmax(-1)
         quat = bins_to_quat(rot_bins, cfg.num_rotation_bins)

@@ -11,7 +11,9 @@ T = ``img_size // patch_size`` patches per side, D = ``attn_dim``, L = language 
    self-attention over [queries, all image tokens] (released code) or cross-attention queries -> image tokens
    (paper text). Query output -> ``img_feat`` (state feature phi(s_t) for the contrastive loss).
 5. Fusion (``num_fusion_layers``): Linear D -> D on [language, (proprio), queries, image tokens], then full
-   self-attention. Query output -> ``fused_feat`` (delta(s_t, l)).
+   self-attention. Query output -> ``fused_feat`` (delta(s_t, l)). Language tokens carry no position here, so
+   fusion sees the instruction as a set of contextual token states; with ``lang_film`` (not in the paper) the
+   image tokens are first scaled and shifted by an ordered code of the tokens (:class:`LanguageFiLM`).
 6. Decoder: image tokens -> Linear D -> c -> per view conv k at T x T, bilinear x patch_size, conv k, concat ``d0``,
    conv 3x3 -> ``u`` (BV, ``final_dim``, H, W) -> conv 3x3 -> translation logits (B, V, H, W).
 7. Heads: [max over tokens (c*V, channel-major), heatmap-weighted sum of ``u`` (V*final_dim, view-major)] -> MLP
@@ -66,6 +68,11 @@ class NetworkConfig:
     # Activation of the rotation/gripper/collision MLP: "relu" (RVT and the released code) or "leaky_relu"
     # (slope LRELU_SLOPE, like the rest of the network: a unit pushed below zero for every input still learns).
     head_activation: Literal["relu", "leaky_relu"] = "relu"
+    # Instruction FiLM (not in the paper): every image token entering fusion is scaled and shifted per channel by
+    # a code of the instruction's tokens taken in order (:class:`LanguageFiLM`). Instructions that differ only in
+    # word order ("red on green" / "green on red") get sentence features 0.994 apart (cosine) but distinct codes.
+    lang_film: bool = False
+    lang_film_code_dim: int = 8
     proprio_dim: int = 3
     logit_scale_init: float = math.log(1 / 0.07)
     channels_last: bool = False  # NHWC conv activations: the layout tensor-core convolutions want on GPUs
@@ -243,6 +250,28 @@ def _stack(cfg: NetworkConfig, n: int, cross: bool = False) -> nn.ModuleList:
     )
 
 
+class LanguageFiLM(nn.Module):
+    """Instruction -> per-channel scale and shift of image tokens: ``img * (1 + gamma) + beta``.
+
+    Each token state (L, D_tok) is projected to ``code_dim`` numbers and the L codes are concatenated in order, so
+    the result depends on which word sits where (a mean over tokens would not tell the stacking orders apart).
+    """
+
+    def __init__(self, token_dim: int, length: int, dim: int, code_dim: int):
+        super().__init__()
+        self.length = length
+        self.token_proj = DenseBlock(token_dim, code_dim)
+        self.out = DenseBlock(length * code_dim, 2 * dim, act=False)
+
+    def forward(self, lang_tokens: Tensor, img: Tensor) -> Tensor:
+        if lang_tokens.shape[1] != self.length:
+            raise ValueError(
+                f"LanguageFiLM expects {self.length} language tokens, got {lang_tokens.shape[1]}"
+            )
+        gamma, beta = self.out(self.token_proj(lang_tokens).flatten(1)).unsqueeze(1).chunk(2, dim=-1)
+        return img * (1 + gamma) + beta
+
+
 class ContrastiveHeads(nn.Module):
     """Everything only the contrastive loss needs (dropped from the inference parameter count)."""
 
@@ -276,7 +305,9 @@ class NetworkOutput:
 class SigmaNetwork(nn.Module):
     """Σ-agent MVQ-Former network. See the module docstring for the data flow."""
 
-    def __init__(self, cfg: NetworkConfig, lang_token_dim: int, lang_sentence_dim: int):
+    def __init__(
+        self, cfg: NetworkConfig, lang_token_dim: int, lang_sentence_dim: int, lang_length: int = 77
+    ):
         super().__init__()
         self.cfg = cfg
         c, d, t = cfg.im_channels, cfg.attn_dim, cfg.tokens_per_side
@@ -294,6 +325,9 @@ class SigmaNetwork(nn.Module):
 
         self.lang_preprocess = DenseBlock(lang_token_dim, d, norm=True)
         self.proprio_preprocess = DenseBlock(cfg.proprio_dim, d) if cfg.use_proprio else None
+        self.lang_film = (
+            LanguageFiLM(lang_token_dim, lang_length, d, cfg.lang_film_code_dim) if cfg.lang_film else None
+        )
         self.fc_bef_fusion = DenseBlock(d, d, act=False)
         self.fusion_layers = _stack(cfg, cfg.num_fusion_layers)
         self.fc_aft_attn = DenseBlock(d, c, act=False)
@@ -398,6 +432,8 @@ class SigmaNetwork(nn.Module):
                 raise ValueError("use_proprio=True needs a proprio tensor (B, proprio_dim)")
             prefix.append(self.proprio_preprocess(proprio).unsqueeze(1))
         n_prefix = sum(p.shape[1] for p in prefix)
+        if self.lang_film is not None:
+            img = self.lang_film(lang_tokens, img)
         seq = self.fc_bef_fusion(torch.cat([*prefix, query, img], dim=1))
         for layer in self.fusion_layers:
             seq = layer(seq)

@@ -17,6 +17,7 @@ writer discards only the partial episode. The run ends with :class:`ImportSummar
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import time
 from collections.abc import Callable, Mapping
@@ -62,6 +63,9 @@ class ImportOutputConfig:
     # Which datasets to write.
     dense: bool = True
     keyframe: bool = True
+    # Store depth in the dense dataset (false: RGB-only, what stock LeRobot image policies such as ACT and
+    # Diffusion Policy train on as it is; the keyframe dataset always keeps depth).
+    dense_depth: bool = True
     # Camera storage: video (dense default) or PNG/TIFF images (keyframe default; exact depth).
     dense_video: bool = True
     keyframe_video: bool = False
@@ -153,6 +157,7 @@ class DatasetSink:
                 "overwrite": self.output.overwrite,
             }
             if kind == "dense":
+                common["layout"] = dataclasses.replace(layout, depth=self.output.dense_depth)
                 self.writers[kind] = DenseWriter(out / kind, use_videos=self.output.dense_video, **common)
             else:
                 self.writers[kind] = KeyframeWriter(

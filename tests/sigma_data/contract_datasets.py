@@ -35,6 +35,8 @@ class Defects:
     goal_offset_m: float = 0.0
     negative_w: bool = False
     blank_instruction_episode: bool = False
+    quat_sign_flip_at: int = -1  # from this frame on, the state quaternion is stored as -q
+    no_depth: bool = False  # RGB-only cameras (allowed for dense datasets)
 
 
 def intrinsics() -> np.ndarray:
@@ -54,7 +56,7 @@ def eef_track(t: int, episode: int) -> tuple[np.ndarray, float]:
     return pos, 1.0 if t < 10 else 0.0
 
 
-def features(kind: str) -> dict:
+def features(kind: str, depth: bool = True) -> dict:
     feats = {}
     for cam in ("top", "wrist"):
         feats[f"observation.images.{cam}"] = {
@@ -62,12 +64,13 @@ def features(kind: str) -> dict:
             "shape": (SIZE, SIZE, 3),
             "names": ["height", "width", "channels"],
         }
-        feats[f"observation.images.{cam}_depth"] = {
-            "dtype": "image",
-            "shape": (SIZE, SIZE, 1),
-            "names": ["height", "width", "channels"],
-            "info": {"is_depth_map": True},
-        }
+        if depth:
+            feats[f"observation.images.{cam}_depth"] = {
+                "dtype": "image",
+                "shape": (SIZE, SIZE, 1),
+                "names": ["height", "width", "channels"],
+                "info": {"is_depth_map": True},
+            }
         feats[f"observation.camera.{cam}.intrinsics"] = {"dtype": "float32", "shape": (3, 3), "names": None}
         feats[f"observation.camera.{cam}.extrinsics"] = {"dtype": "float32", "shape": (4, 4), "names": None}
     feats["observation.state"] = {"dtype": "float32", "shape": (10,), "names": list(STATE_NAMES)}
@@ -93,6 +96,8 @@ def frame(t: int, episode: int, defects: Defects) -> dict:
     if defects.eef_out_of_view:
         pos = pos + np.array([3.0, 0, 0], dtype=np.float32)
     quat = np.array([1.0, 0, 0, 0], dtype=np.float32)  # xyzw: 180 deg about x (gripper pointing down)
+    if 0 <= defects.quat_sign_flip_at <= t:
+        quat = -quat
     state = np.concatenate([pos, quat, [grip], [0.04 * grip, -0.04 * grip]]).astype(np.float32)
     out = {"observation.state": state}
     rng = np.random.default_rng(t)
@@ -108,10 +113,11 @@ def frame(t: int, episode: int, defects: Defects) -> dict:
         rgb = np.full((SIZE, SIZE, 3), (90, 120, 60), dtype=np.uint8)
         out |= {
             f"observation.images.{cam}": rgb,
-            f"observation.images.{cam}_depth": depth,
             f"observation.camera.{cam}.intrinsics": K,
             f"observation.camera.{cam}.extrinsics": E,
         }
+        if not defects.no_depth:
+            out[f"observation.images.{cam}_depth"] = depth
     return out
 
 
@@ -121,7 +127,11 @@ def write_dataset(root: Path, kind: str, defects: Defects | None = None, episode
 
     defects = defects or Defects()
     ds = LeRobotDataset.create(
-        f"local/contract_{kind}", fps=20, features=features(kind), root=root, use_videos=False
+        f"local/contract_{kind}",
+        fps=20,
+        features=features(kind, depth=not defects.no_depth),
+        root=root,
+        use_videos=False,
     )
     try:
         for ep in range(episodes):

@@ -101,3 +101,28 @@ def test_final_keyframe_and_hold_action():
 def test_canonical_quat_batch():
     q = canonical_quat(np.array([[0, 0, 0, -2.0], [0, 1, 0, 0]]))
     np.testing.assert_allclose(q, [[0, 0, 0, 1], [0, 1, 0, 0]])
+
+
+def test_state_quaternion_is_made_continuous_and_keyframe_poses_keep_w_nonnegative():
+    """Gripper pointing down: w ~ 0 and the w >= 0 rule flips the sign back and forth; the episode's state keeps
+    one hemisphere (same rotations), while the keyframe poses keep the w >= 0 convention."""
+    from scipy.spatial.transform import Rotation
+
+    T = 6
+    w = np.array([0.02, -0.01, -0.03, 0.01, -0.02, 0.02])
+    quats = canonical_quat(np.column_stack([np.full(T, 0.99), np.full(T, 0.1), np.zeros(T), w]))
+    assert (np.einsum("ij,ij->i", quats[1:], quats[:-1]) < 0).any()  # the input does flip
+    states = np.zeros((T, 10), np.float32)
+    states[:, 3:7] = quats
+    ep = make_episode(T=T, keyframes=(2, 5), states=states)
+    q = ep.states[:, 3:7].astype(np.float64)
+    assert (np.einsum("ij,ij->i", q[1:], q[:-1]) > 0).all() and q[0, 3] >= 0
+    angle = (Rotation.from_quat(q).inv() * Rotation.from_quat(quats)).magnitude()
+    np.testing.assert_allclose(angle, 0, atol=1e-5)  # same rotations
+    assert (ep.keyframe_poses()[:, 6] >= 0).all()
+
+
+def test_zero_state_quaternion_is_a_clear_error():
+    states = np.zeros((6, 10), np.float32)
+    with pytest.raises(ValueError, match=r"states\[0, 3:7\] \(eef quaternion\) has norm 0.0000"):
+        make_episode(states=states)

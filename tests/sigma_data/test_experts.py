@@ -74,6 +74,30 @@ def test_lift_expert_succeeds_with_sensible_keyframes(lift_env, seed: int):
     assert gripper_width(lift_env) == pytest.approx(0.04, abs=0.006)
 
 
+@pytest.mark.parametrize(("task_name", "variation_name"), [("lift", "lift_cube"), ("stack", "green_on_red")])
+def test_the_whole_grip_site_path_stays_inside_the_task_box(task_name: str, variation_name: str):
+    """The policy can only predict points inside ``bounds`` (its virtual views cover nothing else): every
+    state an expert passes through, keyframes included, keeps 3 cm from the box's faces."""
+    from sigma_data.record import grip_site_pose
+
+    task = get_task(task_name)
+    lo, hi = np.array(task.bounds[:3]) + 0.03, np.array(task.bounds[3:]) - 0.03
+    env = make_env(task)
+    try:
+        for seed in (3, 4):
+            recorder, ok = run_expert(task_name, variation_name, seed, env=env)
+            assert ok
+            path = []
+            for state in recorder.states:
+                env.sim.set_state_from_flattened(state)
+                env.sim.forward()
+                path.append(grip_site_pose(env)[0])
+            path = np.array(path)
+            assert (path >= lo).all() and (path <= hi).all(), (path.min(0), path.max(0), task.bounds)
+    finally:
+        env.close()
+
+
 def test_expert_failure_is_raised_not_hidden(lift_env):
     """An expert that cannot reach a waypoint raises ExpertFailure naming the waypoint."""
     from sigma_data.experts.base import WaypointArm

@@ -125,6 +125,23 @@ def test_raw_episodes_pass_validation_and_load(imported):
     assert "info" not in ds.meta.features["observation.images.wrist"]
 
 
+def test_raw_import_writes_an_rgb_only_dense_dataset_on_request(tmp_path):
+    """``--output.dense_depth=false``: the dense dataset for stock image policies; the keyframe one keeps depth."""
+    src = tmp_path / "raw"
+    write_episode(src, "ep_000", marks=True)
+    summary = import_raw(
+        RawImportConfig(path=src, output=out_config(tmp_path / "out", dense_depth=False), progress=False)
+    )
+    assert summary.converted == 1, summary.failed
+    dense = LeRobotDataset("local/raw", root=tmp_path / "out" / "dense", video_backend="pyav")
+    assert not any(k.endswith("_depth") for k in dense.meta.features)
+    assert dense[0]["observation.images.top"].shape == (3, H, W)
+    keyframe = LeRobotDataset("local/raw_kf", root=tmp_path / "out" / "keyframe", video_backend="pyav")
+    assert "observation.images.top_depth" in keyframe.meta.features
+    report = validate_dataset(ValidateConfig(root=tmp_path / "out" / "dense", frames_per_episode=2))
+    assert report.num_errors == 0, report.table()
+
+
 def test_raw_keyframes_marks_and_heuristic(imported):
     src, _out, _summary = imported
     marked, _ = read_episode(src / "ep_000", ("top",))

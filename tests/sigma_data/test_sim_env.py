@@ -103,3 +103,59 @@ def test_lerobot_env_config_builds_the_vector_env():
         assert list(vec.call("task_description")) == ["lift the cube"]
     finally:
         vec.close()
+
+
+def expert_dense_episode(task_name: str, variation: str, seed: int):
+    from sigma_data.record import EpisodeRecorder
+
+    task = get_task(task_name)
+    var = get_variation(task, variation)
+    env = make_env(task)
+    try:
+        reset_env(env, task, var, seed)
+        recorder = EpisodeRecorder(env)
+        task.expert(recorder, var, np.random.default_rng(seed))
+        assert task.success(env, var), "the expert itself failed on this seed"
+        return recorder.to_episode(task_name, variation, var.instruction, seed)
+    finally:
+        env.close()
+
+
+def test_dense_control_replays_the_recorded_expert_actions_to_success():
+    """The dense mode executes the dense dataset's 7-D actions step for step: the expert's recorded actions,
+    replayed open loop from the same seed, succeed, and the observed states are the recorded states."""
+    episode = expert_dense_episode("lift", "lift_cube", seed=5)
+    env = SigmaRobosuiteEnv("lift", cameras=("agentview",), image_size=32, control="dense", depth=False)
+    try:
+        obs, _ = env.reset(seed=5)
+        assert env.action_space.shape == (7,) and "images.agentview_depth" not in obs
+        assert env.observation_space.contains(obs)
+        states = [obs["agent_pos"]]
+        terminated = False
+        for action in episode.actions[:-1]:
+            obs, reward, terminated, _, info = env.step(action)
+            states.append(obs["agent_pos"])
+            if terminated:
+                break
+        assert terminated and info["is_success"] and reward == 1.0 and info["control_steps"] == 1
+        n = len(states)
+        np.testing.assert_allclose(np.stack(states), episode.states[:n], atol=1e-5)
+        with pytest.raises(ValueError, match="dense control: action must be 7 finite values"):
+            env.step(np.zeros(9))
+    finally:
+        env.close()
+
+
+def test_dense_lerobot_env_config_has_the_dense_dataset_features():
+    from lerobot.envs.configs import EnvConfig
+
+    import sigma_data.lerobot_env  # noqa: F401
+
+    cfg = EnvConfig.get_choice_class("sigma_robosuite")(task="stack", control="dense", depth=False)
+    assert cfg.features["action"].shape == (7,) and cfg.fps == 20
+    assert cfg.episode_length == get_task("stack").max_steps
+    assert not any(k.endswith("_depth") for k in cfg.features)
+    keyframe = EnvConfig.get_choice_class("sigma_robosuite")(task="lift")
+    assert keyframe.features["action"].shape == (9,) and keyframe.episode_length == 10 and keyframe.fps == 2
+    with pytest.raises(ValueError, match="control must be one of"):
+        EnvConfig.get_choice_class("sigma_robosuite")(control="joint")

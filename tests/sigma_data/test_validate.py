@@ -40,6 +40,7 @@ BROKEN = [
     ("dense", Defects(next_index_backwards=True), "keyframes.links", "sigma.next_keyframe_index"),
     ("keyframe", Defects(goal_offset_m=0.05), "goals.links", "action"),
     ("keyframe", Defects(negative_w=True), "goals.quaternion", "action"),
+    ("dense", Defects(quat_sign_flip_at=7), "state.continuity", "observation.state[3:7]"),
 ]
 
 
@@ -52,6 +53,25 @@ def test_each_check_fires_on_a_broken_dataset(tmp_path, kind, defects, check, fi
     hit = next(c for c in failing if c.name == check)
     assert hit.field == field and hit.episode is not None
     assert run_validate(ValidateConfig(root=root, report=tmp_path / "r.json")) == 1
+
+
+def test_state_continuity_names_the_frame_in_its_episode(tmp_path):
+    root = write_dataset(tmp_path / "flip", "dense", Defects(quat_sign_flip_at=7))
+    hit = next(c for c in validate_dataset(ValidateConfig(root=root)).checks if c.name == "state.continuity")
+    assert (hit.episode, hit.frame) == (0, 7) and "2 quaternion sign flip(s)" in hit.detail
+
+
+def test_rgb_only_dense_dataset_passes(tmp_path):
+    """A dense dataset without depth (``sigma-data collect --dense_depth=false``, for stock image policies)."""
+    root = write_dataset(tmp_path / "rgb", "dense", Defects(no_depth=True))
+    report = validate_dataset(ValidateConfig(root=root))
+    assert report.num_errors == 0, report.table()
+    assert "RGB-only dense" in next(c.detail for c in report.checks if c.name == "structure")
+    keyframe = validate_dataset(
+        ValidateConfig(root=write_dataset(tmp_path / "kf", "keyframe", Defects(no_depth=True)))
+    )
+    hit = next(c for c in keyframe.checks if c.name == "structure")  # sigma's policy needs depth
+    assert hit.status == "error" and hit.field == "observation.images.top_depth"
 
 
 def test_depth_range_fires(tmp_path):

@@ -114,9 +114,27 @@ def test_dense_and_keyframe_round_trip(tmp_path):
     assert side["kind"] == "keyframe" and side["num_episodes"] == 6 and side["augment_every"] == 5
     assert [e["chain_start"] for e in side["episodes"][:3]] == [0, 5, 10]
     assert side["episodes"][1]["source_frames"] == [5, 8, 11]
-    assert side["conventions"]["quaternion"] == "xyzw, w >= 0"
+    assert side["conventions"]["quaternion"].startswith("xyzw, unit; keyframe actions w >= 0")
     assert {"robosuite", "mujoco", "lerobot", "sigma"} <= set(side)
     assert read_sidecar(tmp_path / "dense")["source"] == "test"
+
+
+def test_rgb_only_dense_dataset_is_what_stock_image_policies_take(tmp_path):
+    """``DatasetLayout(depth=False)``: no depth feature, calibration kept, every visual feature 3-channel."""
+    from lerobot.configs.types import FeatureType
+    from lerobot.utils.feature_utils import dataset_to_policy_features
+
+    ep = make_episode(0)
+    with DenseWriter(tmp_path / "rgb", DatasetLayout(CAMS, H, W, depth=False)) as dense:
+        dense.add_episode(ep, stored(ep)[0])
+    ds = LeRobotDataset("local/rgb", root=tmp_path / "rgb", video_backend="pyav")
+    visual = {
+        k: f for k, f in dataset_to_policy_features(ds.meta.features).items() if f.type is FeatureType.VISUAL
+    }
+    assert sorted(visual) == [f"observation.images.{c}" for c in sorted(CAMS)]
+    assert all(f.shape == (3, H, W) for f in visual.values())
+    assert ds[3]["observation.camera.wrist.extrinsics"].shape == (4, 4)
+    assert read_sidecar(tmp_path / "rgb")["depth"] is False
 
 
 def test_error_mid_episode_keeps_earlier_episodes_readable(tmp_path):

@@ -128,6 +128,26 @@ def test_save_and_reload_policy_and_processors(tiny_root, tmp_path):
     torch.testing.assert_close(after, before)
 
 
+def test_checkpoint_saved_without_film_loads_without_it(tiny_root, tmp_path, caplog):
+    """A small-preset checkpoint from before ``lang_film`` existed (no field in config.json, no FiLM weights)
+    loads without the module instead of with a randomly initialised one (LeRobot loads non-strictly)."""
+    import json
+
+    _, policy, pre, _, _ = build(tiny_root, lang_film=False)
+    policy.eval()
+    obs = single_observation(tiny_root, 4)
+    before = policy.select_action(pre(dict(obs)))
+    policy.save_pretrained(tmp_path)
+    config = json.loads((tmp_path / "config.json").read_text())
+    del config["lang_film"]  # as written before the field existed
+    (tmp_path / "config.json").write_text(json.dumps(config))
+    with caplog.at_level("WARNING"):
+        loaded = SigmaPolicy.from_pretrained(tmp_path)
+    assert "no instruction-FiLM weights" in caplog.text
+    assert loaded.network.lang_film is None and loaded.config.lang_film is False
+    torch.testing.assert_close(loaded.select_action(pre(dict(obs))), before)
+
+
 def test_depth_unit_mismatch_is_reported(tiny_root):
     _, policy, pre, _, ds = build(tiny_root, depth_unit="m")  # the dataset returns millimetres
     with pytest.raises(ValueError, match="depth_unit"):

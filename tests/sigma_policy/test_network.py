@@ -142,6 +142,13 @@ def test_config_presets_and_overrides():
         "leaky_relu",
         "relu",
     )
+    assert (small.lang_film, small.heatmap_refine_px, paper.lang_film, paper.heatmap_refine_px) == (
+        True,
+        2,
+        False,
+        0,
+    )
+    assert small.network_config().lang_film and not paper.network_config().lang_film
 
 
 @pytest.mark.parametrize("activation", ["relu", "leaky_relu"])
@@ -171,3 +178,24 @@ def test_matrix_upsample_equals_interpolate_then_replicate_pad(size: int, scale:
     (grad_ref,) = torch.autograd.grad(ref, x, g)
     (grad_out,) = torch.autograd.grad(out, x, g)
     torch.testing.assert_close(grad_out, grad_ref, rtol=0, atol=1e-12)
+
+
+def test_language_film_tells_word_order_apart_and_conditions_every_image_token():
+    """Fusion attends over language tokens without positions, so without FiLM the network cannot see token
+    order at all (only what the text encoder's contextual states carry); FiLM codes the tokens in order."""
+    cfg = dataclasses.replace(SMALL, lang_film=True)
+    net = SigmaNetwork(cfg, lang_token_dim=12, lang_sentence_dim=12, lang_length=6).eval()
+    img, tok, _, _ = inputs(cfg, b=1)
+    swapped = tok[:, [0, 2, 1, 3, 4, 5]]  # same tokens, two of them swapped: same mean
+    torch.testing.assert_close(tok.mean(1), swapped.mean(1))
+    with torch.no_grad():
+        a, b = net(img, tok).trans, net(img, swapped).trans
+    assert (a - b).abs().max() > 1e-3
+    no_film = SigmaNetwork(SMALL, lang_token_dim=12, lang_sentence_dim=12, lang_length=6).eval()
+    assert no_film.lang_film is None
+    with torch.no_grad():
+        torch.testing.assert_close(no_film(img, tok).trans, no_film(img, swapped).trans)
+    extra = sum(p.numel() for p in net.lang_film.parameters())
+    assert net.num_parameters() - no_film.num_parameters() == extra == (12 * 8 + 8) + (6 * 8 * 64 + 64)
+    with pytest.raises(ValueError, match="expects 6 language tokens, got 5"):
+        net(img, tok[:, :5])
