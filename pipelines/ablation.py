@@ -234,12 +234,9 @@ def report(cfg: AblationConfig, dataset: Path, trained: dict[str, dict], evals: 
 
 def run_ablation(cfg: AblationConfig) -> str:
     import sigma_data  # noqa: F401  (MUJOCO_GL before robosuite)
+    from pipelines.reporting import start_run_dir, write_run_outputs
 
-    cfg.output_dir = Path(cfg.output_dir)
-    if cfg.fresh:
-        for sub in ("train", "eval"):
-            shutil.rmtree(cfg.output_dir / sub, ignore_errors=True)
-    cfg.output_dir.mkdir(parents=True, exist_ok=True)
+    cfg.output_dir = start_run_dir(cfg.output_dir, cfg.fresh)
     t0 = time.perf_counter()
     print("=== 1/3 collect (scripted experts -> keyframe dataset) ===", flush=True)
     dataset = collect_stage(cfg)
@@ -248,19 +245,15 @@ def run_ablation(cfg: AblationConfig) -> str:
     print("\n=== 3/3 evaluate both arms (sigma-eval) ===", flush=True)
     evals = eval_stage(cfg, dataset, trained)
     text = report(cfg, dataset, trained, evals)
-    (cfg.output_dir / "ablation.md").write_text(text + "\n")
-    (cfg.output_dir / "ablation.json").write_text(
-        json.dumps({"config": draccus.encode(cfg), "trained": trained, "eval": evals}, indent=1, default=str)
+    write_run_outputs(
+        cfg.output_dir,
+        "ablation",
+        "Contrastive-loss ablation (same data, seeds and budget)",
+        text,
+        cfg,
+        {"trained": trained, "eval": {arm: s["variations"] for arm, s in evals.items()}},
+        cfg.publish,
     )
-    if cfg.publish:
-        from pipelines.reporting import write_report
-
-        write_report(
-            "ablation",
-            "Contrastive-loss ablation (same data, seeds and budget)",
-            text,
-            {"trained": trained, "eval": {arm: s["variations"] for arm, s in evals.items()}},
-        )
     print("\n" + text)
     b, c = (100 * evals[arm]["mean_success"] for arm in ("baseline", "contrastive"))
     print(

@@ -363,12 +363,9 @@ def report(
 
 def run_compare(cfg: CompareConfig) -> str:
     import sigma_data  # noqa: F401  (MUJOCO_GL before robosuite)
+    from pipelines.reporting import start_run_dir, write_run_outputs
 
-    cfg.output_dir = Path(cfg.output_dir)
-    if cfg.fresh:
-        for sub in ("train", "eval"):
-            shutil.rmtree(cfg.output_dir / sub, ignore_errors=True)
-    cfg.output_dir.mkdir(parents=True, exist_ok=True)
+    cfg.output_dir = start_run_dir(cfg.output_dir, cfg.fresh)
     t0 = time.perf_counter()
     print("=== 1/3 collect (scripted experts -> keyframe RGB-D + dense RGB datasets) ===", flush=True)
     data = collect_stage(cfg)
@@ -377,19 +374,15 @@ def run_compare(cfg: CompareConfig) -> str:
     print("\n=== 3/3 evaluate (sigma-eval / lerobot-eval, same seeds) ===", flush=True)
     evals = eval_stage(cfg, data, trained)
     text = report(cfg, data, trained, evals)
-    (cfg.output_dir / "compare.md").write_text(text + "\n")
-    (cfg.output_dir / "compare.json").write_text(
-        json.dumps({"config": draccus.encode(cfg), "trained": trained, "eval": evals}, indent=1, default=str)
+    write_run_outputs(
+        cfg.output_dir,
+        "compare",
+        "Σ-agent vs stock LeRobot policies (same demonstrations, same evaluation seeds)",
+        text,
+        cfg,
+        {"trained": trained, "eval": evals},
+        cfg.publish,
     )
-    if cfg.publish:
-        from pipelines.reporting import write_report
-
-        write_report(
-            "compare",
-            "Σ-agent vs stock LeRobot policies (same demonstrations, same evaluation seeds)",
-            text,
-            {"trained": trained, "eval": evals},
-        )
     print("\n" + text)
     parts = []
     for p, rows in evals.items():

@@ -178,12 +178,73 @@ def plan_jobs(cfg: EvalConfig) -> list[Job]:
     return [Job(t, v, s) for s in seeds for t, v in pairs]
 
 
+PROCESSOR_FILES = ("policy_preprocessor.json", "policy_postprocessor.json")
+
+
+class CheckpointError(ValueError):
+    """A checkpoint that cannot be opened safely; the message names the file."""
+
+
+def check_checkpoint(checkpoint: Path | str) -> None:
+    """Refuse a checkpoint that cannot be evaluated safely, naming the file and what is wrong with it:
+
+    * ``config.json`` missing, unreadable, or not a sigma policy;
+    * a processor step named by import path (``"class": "module.Name"``) or unknown to LeRobot's processor
+      registry. LeRobot imports and instantiates such a class with the saved config when it opens the
+      checkpoint (``lerobot-eval`` too): a tampered JSON file could run any code. sigma's loaders accept only
+      steps registered by LeRobot or sigma;
+    * ``model.safetensors`` unreadable (truncated, corrupt) or holding a NaN/inf tensor.
+    """
+    from lerobot.processor.pipeline import ProcessorStepRegistry
+    from safetensors import safe_open
+
+    import sigma_policy  # noqa: F401  (registers sigma's processor steps)
+
+    root = Path(checkpoint)
+    config_path = root / "config.json"
+    try:
+        kind = json.loads(config_path.read_text()).get("type")
+    except (OSError, ValueError) as e:
+        raise CheckpointError(f"{config_path}: cannot read the policy config ({e})") from e
+    if kind != "sigma":
+        raise CheckpointError(f"{config_path}: a {kind!r} policy, not a sigma checkpoint")
+    registered = set(ProcessorStepRegistry.list())
+    for name in PROCESSOR_FILES:
+        path = root / name
+        try:
+            steps = json.loads(path.read_text())["steps"]
+        except (OSError, ValueError, KeyError, TypeError) as e:
+            raise CheckpointError(f"{path}: cannot read the processor steps ({e})") from e
+        for i, step in enumerate(steps):
+            if "class" in step or step.get("registry_name") not in registered:
+                what = (
+                    f"class {step['class']!r}" if "class" in step else f"step {step.get('registry_name')!r}"
+                )
+                raise CheckpointError(
+                    f"{path}: step {i} names {what}, which is not a registered processor step; refusing to open "
+                    "the checkpoint (opening it would import and run that class)"
+                )
+    model_path = root / "model.safetensors"
+    try:
+        with safe_open(model_path, "pt") as f:
+            for key in f.keys():  # noqa: SIM118  (a safe_open handle is not iterable)
+                tensor = f.get_tensor(key)
+                if tensor.is_floating_point() and not bool(tensor.isfinite().all()):
+                    raise CheckpointError(f"{model_path}: tensor {key!r} holds NaN or inf values")
+    except CheckpointError:
+        raise
+    except Exception as e:  # safetensors raises its own error types for truncated or corrupt files
+        raise CheckpointError(f"{model_path}: cannot read the weights ({type(e).__name__}: {e})") from e
+
+
 def load_policy(checkpoint: Path | str, device: str = "cpu") -> tuple[Any, Any, Any]:
-    """A saved sigma checkpoint on ``device`` in eval mode, with its saved pre- and post-processor."""
+    """A saved sigma checkpoint on ``device`` in eval mode, with its saved pre- and post-processor
+    (after :func:`check_checkpoint`)."""
     from lerobot.policies.factory import make_pre_post_processors
 
     from sigma_policy.modeling_sigma import SigmaPolicy
 
+    check_checkpoint(checkpoint)
     policy = SigmaPolicy.from_pretrained(str(checkpoint))
     policy.config.device = device
     policy.to(device).eval()
@@ -338,13 +399,23 @@ def _batched(value):
 _WORKER: _Worker | None = None
 
 
+_WORKER_ERROR: BaseException | None = None
+
+
 def _init_worker(cfg: EvalConfig) -> None:
-    global _WORKER
+    # An exception here would make multiprocessing.Pool replace the worker forever (a hang): keep it and raise
+    # it from the first job instead, which ends the evaluation with that error.
+    global _WORKER, _WORKER_ERROR
     logging.basicConfig(level=logging.WARNING)
-    _WORKER = _Worker(cfg)
+    try:
+        _WORKER = _Worker(cfg)
+    except Exception as e:
+        _WORKER_ERROR = e
 
 
 def _run_job(job: Job) -> EpisodeResult:
+    if _WORKER_ERROR is not None:
+        raise RuntimeError(f"an evaluation worker could not start: {_WORKER_ERROR}") from _WORKER_ERROR
     assert _WORKER is not None
     return _WORKER.run(job)
 
@@ -414,9 +485,10 @@ def _failures_text(failures: dict[str, int]) -> str:
 def run_eval(cfg: EvalConfig) -> dict:
     """Evaluate and write ``results.json`` / ``results.md`` under ``cfg.output_dir``; return the summary."""
     if cfg.checkpoint is None or not (Path(cfg.checkpoint) / "config.json").exists():
-        raise FileNotFoundError(f"--checkpoint must be a pretrained_model directory, got {cfg.checkpoint}")
+        raise CheckpointError(f"--checkpoint must be a pretrained_model directory, got {cfg.checkpoint}")
     if cfg.episodes < 1 or cfg.max_keyframes < 1 or cfg.workers < 1:
         raise ValueError("--episodes, --max_keyframes and --workers must be >= 1")
+    check_checkpoint(cfg.checkpoint)  # here, not in a pool worker: a bad file is one clear error
     jobs = plan_jobs(cfg)
     cfg.output_dir = Path(cfg.output_dir)
     cfg.output_dir.mkdir(parents=True, exist_ok=True)
@@ -447,7 +519,11 @@ def main(argv: list[str] | None = None) -> int:
     import sigma_data  # noqa: F401  (MUJOCO_GL before robosuite)
 
     cfg = draccus.parse(EvalConfig, args=sys.argv[1:] if argv is None else argv)
-    summary = run_eval(cfg)
+    try:
+        summary = run_eval(cfg)
+    except CheckpointError as e:
+        print(f"sigma-eval: {e}", file=sys.stderr)
+        return 1
     print(markdown_table(summary))
     n = len(summary["episodes"])
     wins = sum(e["success"] for e in summary["episodes"])

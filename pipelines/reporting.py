@@ -91,3 +91,29 @@ def write_report(
     payload["data"] = data
     (out / f"{name}.json").write_text(json.dumps(payload, indent=1, default=str) + "\n")
     return md_path
+
+
+def start_run_dir(output_dir: Path, fresh: bool, stages: tuple[str, ...] = ("train", "eval")) -> Path:
+    """Create a pipeline's output directory; ``fresh`` deletes its ``stages`` (collected data is kept)."""
+    import shutil
+
+    output_dir = Path(output_dir)
+    if fresh:
+        for sub in stages:
+            shutil.rmtree(output_dir / sub, ignore_errors=True)
+    output_dir.mkdir(parents=True, exist_ok=True)
+    return output_dir
+
+
+def write_run_outputs(
+    output_dir: Path, name: str, title: str, markdown: str, config: Any, data: dict, publish: bool
+) -> None:
+    """A pipeline's table to ``<output_dir>/<name>.md``, its config and raw numbers to ``<name>.json``; with
+    ``publish`` also the RESULTS.md fragment (:func:`write_report`)."""
+    import draccus
+
+    (output_dir / f"{name}.md").write_text(markdown + "\n")
+    payload = {"config": draccus.encode(config), **data}
+    (output_dir / f"{name}.json").write_text(json.dumps(payload, indent=1, default=str))
+    if publish:
+        write_report(name, title, markdown, data)

@@ -112,6 +112,9 @@ class CollectConfig:
     executor: str = "processes"
     # Show progress bars.
     progress: bool = True
+    # Replace what output_dir holds when it was not written by a collection with these options (another
+    # configuration, another tool, or files of your own). Without it such a directory is an error, never touched.
+    overwrite: bool = False
 
     def __post_init__(self) -> None:
         if self.executor not in ("processes", "datatrove"):
@@ -773,6 +776,9 @@ def merge_shards(kind: str, shard_roots: list[Path], out: Path, repo_id: str) ->
     from lerobot.datasets.aggregate import aggregate_datasets
     from lerobot.datasets.io_utils import load_info
 
+    # Merge next to the target and swap it in when complete: a kill or a full disk mid-merge leaves the previous
+    # dataset (or none) at ``out``, never a partial one that LeRobot would read as a dataset.
+    final, out = out, out.with_name(f".{out.name}.merging")
     if out.exists():
         shutil.rmtree(out)
     if len(shard_roots) == 1:  # already the merged dataset: LeRobot's merge would rewrite the same files
@@ -804,6 +810,51 @@ def merge_shards(kind: str, shard_roots: list[Path], out: Path, repo_id: str) ->
     merged["num_episodes"] = len(episodes)
     merged["num_frames"] = sum(e["length"] for e in episodes)
     (out / SIDECAR).write_text(json.dumps(merged, indent=1))
+    old = final.with_name(f".{final.name}.replaced")
+    if old.exists():
+        shutil.rmtree(old)
+    if final.exists():
+        final.rename(old)
+    out.rename(final)
+    shutil.rmtree(old, ignore_errors=True)
+
+
+# Options that change how a collection runs, not what it writes: a rerun may change them and still resume.
+RUN_OPTIONS = frozenset({"output_dir", "workers", "render_threads", "executor", "progress", "overwrite"})
+RECORD = "collect.json"
+
+
+def claim_output_dir(cfg: CollectConfig) -> None:
+    """Make sure ``output_dir`` holds nothing but this collection (or a resumable run of it), then record the
+    options in ``collect.json`` before any shard is written. Anything else there raises ``FileExistsError``
+    (``--overwrite=true`` replaces it): a directory of someone else's files, datasets from another tool, or a
+    collection made with other options (other tasks, seeds, image size...)."""
+    out = Path(cfg.output_dir)
+    record = out / RECORD
+    mine = {k: str(v) for k, v in asdict(cfg).items() if k not in RUN_OPTIONS}
+    present = sorted(p.name for p in out.iterdir()) if out.is_dir() else []
+    if present and not cfg.overwrite:
+        hint = "pass --overwrite=true to replace it, or choose another --output_dir"
+        if RECORD not in present:
+            raise FileExistsError(
+                f"{out} is not empty ({', '.join(present[:5])}) and holds no {RECORD}: {hint}"
+            )
+        previous = json.loads(record.read_text()).get("config", {})
+        defaults = {k: str(v) for k, v in asdict(CollectConfig()).items()}  # options added since that run
+        differ = [k for k in mine if previous.get(k, defaults[k]) != mine[k]]
+        if differ:
+            changes = ", ".join(f"{k} {previous.get(k, defaults[k])} -> {mine[k]}" for k in differ)
+            raise FileExistsError(f"{out} holds a collection made with other options ({changes}): {hint}")
+    if present and cfg.overwrite:
+        for name in ("dense", "keyframe", "shards", RECORD):
+            path = out / name
+            if path.is_dir():
+                shutil.rmtree(path)
+            elif path.exists():
+                path.unlink()
+    out.mkdir(parents=True, exist_ok=True)
+    if not record.exists():
+        record.write_text(json.dumps({"config": mine, "shards": []}, indent=1))
 
 
 def collect(cfg: CollectConfig) -> CollectSummary:
@@ -814,6 +865,7 @@ def collect(cfg: CollectConfig) -> CollectSummary:
     shards = plan_shards(cfg)
     out = Path(cfg.output_dir)
     shards_dir = out / "shards"
+    claim_output_dir(cfg)
 
     done: dict[str, ShardResult] = {}
     for spec in shards:
@@ -856,10 +908,8 @@ def collect(cfg: CollectConfig) -> CollectSummary:
         if helpers is not None:
             helpers.close()
     summary = CollectSummary(ordered, outputs, time.perf_counter() - start)
-    (out / "collect.json").write_text(
-        json.dumps(
-            {"config": {k: str(v) for k, v in asdict(cfg).items()}, "shards": [asdict(s) for s in ordered]},
-            indent=1,
-        )
-    )
+    config = {k: str(v) for k, v in asdict(cfg).items() if k not in RUN_OPTIONS}
+    tmp = out / f".{RECORD}.tmp"
+    tmp.write_text(json.dumps({"config": config, "shards": [asdict(s) for s in ordered]}, indent=1))
+    tmp.replace(out / RECORD)
     return summary

@@ -72,6 +72,7 @@ def test_rerun_skips_finished_shards_and_resumes_an_interrupted_one(first_run, t
     out, summary = first_run
     resumed = tmp_path / "resumed"
     shutil.copytree(out / "shards", resumed / "shards")
+    shutil.copy(out / "collect.json", resumed / "collect.json")  # written before the first shard starts
     # An interrupted shard: killed before its marker, its dataset never finalized.
     second = resumed / "shards" / summary.shards[1].name
     (second / MARKER).unlink()
@@ -100,6 +101,52 @@ def test_rerun_skips_finished_shards_and_resumes_an_interrupted_one(first_run, t
     last = len(ka) - 1
     for key in ("observation.images.agentview", "observation.images.robot0_eye_in_hand_depth"):
         np.testing.assert_array_equal(ka[last][key].numpy(), kb[last][key].numpy())
+
+
+def test_existing_data_is_never_replaced_without_overwrite(first_run, tmp_path, capsys):
+    """A directory of other files, or a finished collection made with other options, is an error that touches
+    nothing; ``--overwrite=true`` replaces it; a merge swaps the finished dataset in (no partial one at the path)."""
+    mine = tmp_path / "mine"
+    (mine / "dense").mkdir(parents=True)
+    (mine / "dense" / "f.txt").write_text("keep")
+    with pytest.raises(FileExistsError, match=r"holds no collect\.json"):
+        collect(tiny(mine))
+    assert (mine / "dense" / "f.txt").read_text() == "keep" and sorted(p.name for p in mine.iterdir()) == [
+        "dense"
+    ]
+
+    out, _ = first_run
+    before = {p: p.stat().st_mtime_ns for p in out.rglob("*")}
+    code = cli_main(["collect", *_args(replace(tiny(out), episodes=1, height=48, width=48))])
+    assert code != 0
+    err = capsys.readouterr().err
+    assert "other options (episodes 2 -> 1, height 32 -> 48, width 32 -> 48)" in err
+    assert {p: p.stat().st_mtime_ns for p in out.rglob("*")} == before  # nothing touched
+    # Changing only how it runs resumes: every shard reused, the merged datasets swapped in whole.
+    again = collect(replace(tiny(out), render_threads=1))
+    assert all(s.skipped for s in again.shards)
+    assert not list(out.glob(".*merging")) and not list(out.glob(".*replaced"))
+
+    copy = tmp_path / "copy"
+    shutil.copytree(out, copy)
+    one = collect(replace(tiny(copy), episodes=1, overwrite=True))
+    assert (
+        one.kept == 1
+        and LeRobotDataset("local/c", root=copy / "dense", video_backend="pyav").num_episodes == 1
+    )
+
+
+def _args(cfg: CollectConfig) -> list[str]:
+    return [
+        f"--tasks={cfg.tasks}",
+        f"--episodes={cfg.episodes}",
+        f"--shard_size={cfg.shard_size}",
+        f"--cameras={cfg.cameras}",
+        f"--height={cfg.height}",
+        f"--width={cfg.width}",
+        f"--output_dir={cfg.output_dir}",
+        "--progress=false",
+    ]
 
 
 def test_two_workers_share_the_shards_and_give_the_same_data(first_run, tmp_path):

@@ -13,18 +13,23 @@ from sigma_data.tasks.registry import get_task, get_variation, make_env, reset_e
 CAMS = ("agentview", "robot0_eye_in_hand")
 
 
-def expert_keyframes(task_name: str, variation: str, seed: int) -> np.ndarray:
+def run_expert(task_name: str, variation: str, seed: int, make_driver):
+    """Run a scripted expert through the driver ``make_driver(env)`` (an EnvDriver or an EpisodeRecorder)."""
     task = get_task(task_name)
     var = get_variation(task, variation)
     env = make_env(task)
     try:
         reset_env(env, task, var, seed)
-        driver = EnvDriver(env)
+        driver = make_driver(env)
         task.expert(driver, var, np.random.default_rng(seed))
         assert task.success(env, var), "the expert itself failed on this seed"
-        return np.asarray(driver.keyframes)
+        return driver
     finally:
         env.close()
+
+
+def expert_keyframes(task_name: str, variation: str, seed: int) -> np.ndarray:
+    return np.asarray(run_expert(task_name, variation, seed, EnvDriver).keyframes)
 
 
 @pytest.fixture(scope="module")
@@ -108,17 +113,9 @@ def test_lerobot_env_config_builds_the_vector_env():
 def expert_dense_episode(task_name: str, variation: str, seed: int):
     from sigma_data.record import EpisodeRecorder
 
-    task = get_task(task_name)
-    var = get_variation(task, variation)
-    env = make_env(task)
-    try:
-        reset_env(env, task, var, seed)
-        recorder = EpisodeRecorder(env)
-        task.expert(recorder, var, np.random.default_rng(seed))
-        assert task.success(env, var), "the expert itself failed on this seed"
-        return recorder.to_episode(task_name, variation, var.instruction, seed)
-    finally:
-        env.close()
+    recorder = run_expert(task_name, variation, seed, EpisodeRecorder)
+    instruction = get_variation(get_task(task_name), variation).instruction
+    return recorder.to_episode(task_name, variation, instruction, seed)
 
 
 def test_dense_control_replays_the_recorded_expert_actions_to_success():
