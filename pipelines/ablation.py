@@ -73,26 +73,18 @@ class AblationConfig:
 
 
 def collect_stage(cfg: AblationConfig) -> Path:
-    from sigma_data.collect import CollectConfig, collect
+    from pipelines.collecting import collect_demonstrations
 
-    summary = collect(
-        CollectConfig(
-            tasks=",".join(cfg.tasks),
-            episodes=cfg.episodes,
-            output_dir=cfg.output_dir / "data",
-            repo_id="local/sigma_ablation",
-            cameras=",".join(cfg.cameras),
-            height=cfg.image_size,
-            width=cfg.image_size,
-            dense=False,
-            workers=cfg.workers,
-            progress=False,
-        )
-    )
-    print(summary.line(), flush=True)
-    if summary.kept == 0:
-        raise RuntimeError("the experts produced no successful episode; nothing to train on")
-    return summary.outputs["keyframe"]
+    return collect_demonstrations(
+        cfg.output_dir,
+        cfg.tasks,
+        cfg.episodes,
+        cfg.cameras,
+        cfg.image_size,
+        cfg.workers,
+        "local/sigma_ablation",
+        dense=False,
+    )["keyframe"]
 
 
 def train_stage(cfg: AblationConfig, dataset: Path) -> dict[str, dict]:

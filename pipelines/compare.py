@@ -127,26 +127,18 @@ class CompareConfig:
 
 def collect_stage(cfg: CompareConfig) -> dict[str, Path]:
     """Scripted experts -> keyframe (RGB-D) + dense (RGB-only) datasets from the same episodes."""
-    from sigma_data.collect import CollectConfig, collect
+    from pipelines.collecting import collect_demonstrations
 
-    summary = collect(
-        CollectConfig(
-            tasks=",".join(cfg.tasks),
-            episodes=cfg.episodes,
-            output_dir=cfg.output_dir / "data",
-            repo_id="local/sigma_compare",
-            cameras=",".join(cfg.cameras),
-            height=cfg.image_size,
-            width=cfg.image_size,
-            dense_depth=False,
-            workers=cfg.workers,
-            progress=False,
-        )
+    return collect_demonstrations(
+        cfg.output_dir,
+        cfg.tasks,
+        cfg.episodes,
+        cfg.cameras,
+        cfg.image_size,
+        cfg.workers,
+        "local/sigma_compare",
+        dense_depth=False,
     )
-    print(summary.line(), flush=True)
-    if summary.kept == 0:
-        raise RuntimeError("the experts produced no successful episode; nothing to train on")
-    return dict(summary.outputs)
 
 
 def train_stage(cfg: CompareConfig, data: dict[str, Path]) -> dict[str, dict]:
