@@ -26,7 +26,6 @@ from __future__ import annotations
 import json
 import math
 import os
-import shutil
 import sys
 import time
 from dataclasses import dataclass, field
@@ -114,12 +113,10 @@ def train_stage(cfg: AblationConfig, dataset: Path) -> dict[str, dict]:
     procs = {}
     for arm, run in runs.items():
         done = cfg.output_dir / "train" / f"{arm}.json"
-        if done.exists() and (run.checkpoint / "config.json").exists():
-            results[arm] = json.loads(done.read_text())
-            print(f"{arm}: reusing the finished run in {run.output_dir}", flush=True)
+        previous = run.reuse_or_clear(done, arm)
+        if previous is not None:
+            results[arm] = previous
             continue
-        if run.output_dir.exists():
-            shutil.rmtree(run.output_dir)  # lerobot-train refuses an existing output dir without --resume
         log = cfg.output_dir / "train" / f"{arm}.log"
         print(
             f"{arm}: lerobot-train {cfg.steps} steps x batch {cfg.batch_size}, {threads} thread(s); log {log}"

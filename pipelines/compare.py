@@ -164,12 +164,10 @@ def train_stage(cfg: CompareConfig, data: dict[str, Path]) -> dict[str, dict]:
             extra_args=[] if sigma else stock_args(policy, cfg.image_size),
         )
         done = cfg.output_dir / "train" / f"{policy}.json"
-        if done.exists() and (run.checkpoint / "config.json").exists():
-            results[policy] = json.loads(done.read_text())
-            print(f"{policy}: reusing the finished run in {run.output_dir}", flush=True)
+        previous = run.reuse_or_clear(done, policy)
+        if previous is not None:
+            results[policy] = previous
             continue
-        if run.output_dir.exists():
-            shutil.rmtree(run.output_dir)  # lerobot-train refuses an existing output dir without --resume
         log = cfg.output_dir / "train" / f"{policy}.log"
         print(
             f"{policy}: lerobot-train {budget.steps} steps x batch {budget.batch_size}; log {log}", flush=True

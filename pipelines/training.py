@@ -6,8 +6,10 @@ pipelines measure is what ``lerobot-train --policy.type=sigma`` does.
 
 from __future__ import annotations
 
+import json
 import os
 import re
+import shutil
 import subprocess
 import sys
 import time
@@ -40,6 +42,16 @@ class TrainRun:
     @property
     def checkpoint(self) -> Path:
         return self.output_dir / "checkpoints" / "last" / "pretrained_model"
+
+    def reuse_or_clear(self, record: Path, name: str) -> dict | None:
+        """A pipeline's stage record of this run (``record``, JSON) when the run finished and saved its checkpoint;
+        otherwise clear ``output_dir`` (lerobot-train refuses an existing one without ``--resume``) and None."""
+        if record.exists() and (self.checkpoint / "config.json").exists():
+            print(f"{name}: reusing the finished run in {self.output_dir}", flush=True)
+            return json.loads(record.read_text())
+        if self.output_dir.exists():
+            shutil.rmtree(self.output_dir)
+        return None
 
     def command(self) -> list[str]:
         policy = [f"--policy.type={self.policy_type}", f"--policy.device={self.device}"]

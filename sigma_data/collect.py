@@ -122,6 +122,11 @@ class CollectConfig:
         if self.render_threads < 0:
             raise ValueError(f"--render_threads must be >= 0, got {self.render_threads}")
 
+    def data_options(self) -> dict[str, str]:
+        """The options that decide what a collection writes (all but :data:`RUN_OPTIONS`), as recorded in
+        ``collect.json``."""
+        return {k: str(v) for k, v in asdict(self).items() if k not in RUN_OPTIONS}
+
     def threads_per_worker(self) -> int:
         """Render threads of each worker process (``render_threads``, or the cores shared among the workers)."""
         if self.render_threads:
@@ -831,7 +836,7 @@ def claim_output_dir(cfg: CollectConfig) -> None:
     collection made with other options (other tasks, seeds, image size...)."""
     out = Path(cfg.output_dir)
     record = out / RECORD
-    mine = {k: str(v) for k, v in asdict(cfg).items() if k not in RUN_OPTIONS}
+    mine = cfg.data_options()
     present = sorted(p.name for p in out.iterdir()) if out.is_dir() else []
     if present and not cfg.overwrite:
         hint = "pass --overwrite=true to replace it, or choose another --output_dir"
@@ -840,7 +845,7 @@ def claim_output_dir(cfg: CollectConfig) -> None:
                 f"{out} is not empty ({', '.join(present[:5])}) and holds no {RECORD}: {hint}"
             )
         previous = json.loads(record.read_text()).get("config", {})
-        defaults = {k: str(v) for k, v in asdict(CollectConfig()).items()}  # options added since that run
+        defaults = CollectConfig().data_options()  # options added since that run
         differ = [k for k in mine if previous.get(k, defaults[k]) != mine[k]]
         if differ:
             changes = ", ".join(f"{k} {previous.get(k, defaults[k])} -> {mine[k]}" for k in differ)
@@ -908,8 +913,9 @@ def collect(cfg: CollectConfig) -> CollectSummary:
         if helpers is not None:
             helpers.close()
     summary = CollectSummary(ordered, outputs, time.perf_counter() - start)
-    config = {k: str(v) for k, v in asdict(cfg).items() if k not in RUN_OPTIONS}
     tmp = out / f".{RECORD}.tmp"
-    tmp.write_text(json.dumps({"config": config, "shards": [asdict(s) for s in ordered]}, indent=1))
+    tmp.write_text(
+        json.dumps({"config": cfg.data_options(), "shards": [asdict(s) for s in ordered]}, indent=1)
+    )
     tmp.replace(out / RECORD)
     return summary

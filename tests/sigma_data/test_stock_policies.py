@@ -6,6 +6,7 @@ not the policy; ``benchmarks/bench_policies.py`` measures success)."""
 from __future__ import annotations
 
 import json
+import os
 import subprocess
 import sys
 from pathlib import Path
@@ -19,7 +20,7 @@ def cli(name: str, *args: str, timeout: int = 600) -> subprocess.CompletedProces
         capture_output=True,
         text=True,
         timeout=timeout,
-        env={**__import__("os").environ, "HF_HUB_OFFLINE": "1"},
+        env={**os.environ, "HF_HUB_OFFLINE": "1"},
     )
     assert proc.returncode == 0, f"{name} failed:\n{proc.stdout[-2000:]}\n{proc.stderr[-4000:]}"
     return proc
