@@ -120,8 +120,7 @@ def run_baseline(cfg: BenchConfig, root: Path) -> dict:
     from robosuite.controllers import load_composite_controller_config
 
     from sigma_data.experts.base import ExpertFailure
-    from sigma_data.tasks import get_task, reset_env
-    from sigma_data.tasks.registry import CONTROL_FREQ, CONTROLLER, ROBOT
+    from sigma_data.suite import CONTROL_FREQ, CONTROLLER, ROBOT, get_task, reset_env
     from sigma_data.writers import DatasetLayout, DenseWriter, depth_encoder_config
 
     cams = tuple(c for c in cfg.cameras.split(","))
@@ -192,7 +191,7 @@ def preload() -> None:
 
     import sigma_data.experts.base
     import sigma_data.record
-    import sigma_data.tasks  # noqa: F401
+    import sigma_data.suite  # noqa: F401
 
 
 def run_sigma(c: CollectConfig) -> dict:

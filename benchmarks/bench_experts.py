@@ -31,7 +31,7 @@ from pipelines.evaluate import wilson_interval
 from sigma_data.control import EnvDriver, KeyframeExecutor
 from sigma_data.experts.base import ExpertFailure
 from sigma_data.mujoco_gl import quiet_robosuite
-from sigma_data.tasks import TASKS, get_task, get_variation, make_env, reset_env
+from sigma_data.suite import TASKS, get_task, get_variation, make_env, reset_env
 
 
 @dataclass

@@ -113,7 +113,7 @@ def run_one(cfg: LearningBenchConfig, name: str, args: list[str], train_root: Pa
     from pipelines.diagnostics import DiagnoseConfig, run_diagnose
     from pipelines.evaluate import EvalConfig, run_eval
     from pipelines.training import TrainRun, train
-    from sigma_data.tasks import scene_bounds
+    from sigma_data.suite import scene_bounds
 
     run_dir = cfg.output_dir / "runs" / name
     run = TrainRun(

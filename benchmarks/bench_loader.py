@@ -123,7 +123,7 @@ def _bench(cfg: LoaderBenchConfig, root: Path, described: str) -> str:
                 "single_frame_ms": single,
                 "root": str(root),
             },
-            notes="sigma installs both read fixes on import (`sigma_policy/lerobot_patches.py`), also in "
+            notes="sigma installs both read fixes when LeRobot loads its plugin (`sigma_policy/lerobot_patches.py`), also in "
             "lerobot-train's spawned DataLoader workers; the baseline is LeRobot's own `_query_hf_dataset` and "
             "`get_item`, timed in the same run on the same dataset.",
             results_dir=cfg.results_dir,

@@ -1,7 +1,7 @@
-"""Torch-only benchmark of the sigma training step and action latency (no LeRobot, no text encoder needed).
+"""Benchmark of the sigma network's training step and action latency (no dataset, no text encoder needed).
 
 Per training step: render current and goal clouds (``--points`` per sample) into 5 views, run the network with the
-contrastive heads, the BC + contrastive losses, backward and a LAMB step. Inference: render one cloud, forward,
+contrastive heads (the preset's architecture from ``sigma_policy/configuration_sigma.py``), the BC + contrastive losses, backward and a LAMB step. Inference: render one cloud, forward,
 heatmap argmax over the 3D grid. Language tokens are random (B, 77, 384) MiniLM-shaped tensors.
 
     python benchmarks/bench_network.py --config paper --device cuda --batch-size 32
@@ -10,73 +10,19 @@ heatmap argmax over the 3D grid. Language tokens are random (B, 77, 384) MiniLM-
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import json
-import sys
 import time
-import types
-from pathlib import Path
 
 import torch
 import torch.nn.functional as F
 
-ROOT = Path(__file__).resolve().parents[1]
-
-
-def import_without_lerobot() -> None:
-    """Import the torch-only sigma_policy modules without running the package __init__ (which needs LeRobot)."""
-    pkg = types.ModuleType("sigma_policy")
-    pkg.__path__ = [str(ROOT / "sigma_policy")]
-    sys.modules.setdefault("sigma_policy", pkg)
-    try:
-        import lerobot.optim.optimizers  # noqa: F401
-    except ImportError:  # minimal stand-in so that sigma_policy.lamb imports
-
-        class _Cfg:
-            @classmethod
-            def register_subclass(cls, name):
-                return lambda c: c
-
-        for name in ("lerobot", "lerobot.optim", "lerobot.optim.optimizers"):
-            sys.modules[name] = types.ModuleType(name)
-        sys.modules["lerobot.optim.optimizers"].OptimizerConfig = _Cfg
-        sys.modules["lerobot.optim.optimizers"].OptimizerParams = object
-
-
-PAPER = {
-    "img_size": 220,
-    "patch_size": 11,
-    "im_channels": 64,
-    "final_dim": 64,
-    "attn_dim": 512,
-    "attn_heads": 8,
-    "attn_dim_head": 64,
-    "num_view_layers": 2,
-    "num_query_layers": 2,
-    "num_fusion_layers": 4,
-    "decoder_kernel": 11,
-}
-
-SMALL = {
-    "img_size": 64,
-    "patch_size": 8,
-    "im_channels": 16,
-    "final_dim": 16,
-    "attn_dim": 128,
-    "attn_heads": 4,
-    "attn_dim_head": 32,
-    "num_view_layers": 1,
-    "num_query_layers": 1,
-    "num_fusion_layers": 2,
-    "decoder_kernel": 3,
-    "attn_dropout": 0.0,
-}
-
 
 def main() -> None:
-    import_without_lerobot()
+    from sigma_policy.configuration_sigma import SigmaConfig
     from sigma_policy.contrastive import contrastive_losses
     from sigma_policy.lamb import Lamb
-    from sigma_policy.network import NetworkConfig, SigmaNetwork
+    from sigma_policy.network import SigmaNetwork
     from sigma_policy.renderer import VirtualViewRenderer
 
     ap = argparse.ArgumentParser()
@@ -92,7 +38,9 @@ def main() -> None:
     ap.add_argument("--profile", action="store_true", help="print the top kernels of two profiled steps")
     args = ap.parse_args()
     dev, b = args.device, args.batch_size
-    cfg = NetworkConfig(**(PAPER if args.config == "paper" else SMALL), channels_last=args.channels_last)
+    cfg = dataclasses.replace(
+        SigmaConfig(preset=args.config, device=dev).network_config(), channels_last=args.channels_last
+    )
     net = SigmaNetwork(cfg, 384, 384).to(dev)
     if args.channels_last:
         net = net.to(memory_format=torch.channels_last)
@@ -114,11 +62,12 @@ def main() -> None:
         )
 
     tok, sent = torch.randn(b, 77, 384, device=dev), torch.randn(b, 384, device=dev)
+    proprio = torch.rand(b, cfg.proprio_dim, device=dev) if cfg.use_proprio else None
 
     def step():
         img, goal = renderer(*cloud(b)), renderer(*cloud(b))
         with amp:
-            out = fwd(img, tok, sent, goal)
+            out = fwd(img, tok, sent, goal, proprio)
         target = torch.rand(b, V, S * S, device=dev).softmax(-1)
         loss = -(target * out.trans.float().flatten(2).log_softmax(-1)).sum(-1).mean()
         loss = loss + F.cross_entropy(
@@ -160,7 +109,7 @@ def main() -> None:
             t = time.perf_counter()
             img = renderer(*cloud(1))
             with amp:
-                out = fwd(img, tok[:1])
+                out = fwd(img, tok[:1], proprio=None if proprio is None else proprio[:1])
             hm = out.trans.float().softmax(-1)  # stand-in for the 3D argmax: per-view argmax
             hm.flatten(2).argmax(-1)
             out.rot_logits.argmax(-1)

@@ -89,7 +89,7 @@ def collect_stage(cfg: AblationConfig) -> Path:
 def train_stage(cfg: AblationConfig, dataset: Path) -> dict[str, dict]:
     """Train both arms side by side (resuming finished ones); return per-arm checkpoint, seconds, metrics."""
     from pipelines.training import TrainRun, last_logged_metrics, start, wait
-    from sigma_data.tasks import scene_bounds
+    from sigma_data.suite import scene_bounds
 
     box = scene_bounds(cfg.tasks)
     runs = {
@@ -170,7 +170,7 @@ def _pct(row: dict) -> str:
 
 def report(cfg: AblationConfig, dataset: Path, trained: dict[str, dict], evals: dict[str, dict]) -> str:
     """The Markdown comparison: per variation, both arms with Wilson 95% intervals, then training facts."""
-    from sigma_data.writers import read_sidecar
+    from sigma_data.contract import read_sidecar
 
     rows = {arm: {(r["task"], r["variation"]): r for r in s["variations"]} for arm, s in evals.items()}
     keys = sorted(set().union(*(r.keys() for r in rows.values())))

@@ -144,7 +144,7 @@ def collect_stage(cfg: CompareConfig) -> dict[str, Path]:
 def train_stage(cfg: CompareConfig, data: dict[str, Path]) -> dict[str, dict]:
     """Train each policy in turn with lerobot-train (finished runs are reused)."""
     from pipelines.training import TrainRun, last_logged_metrics, train
-    from sigma_data.tasks import scene_bounds
+    from sigma_data.suite import scene_bounds
 
     results: dict[str, dict] = {}
     for policy in cfg.policies:
@@ -191,7 +191,7 @@ def lerobot_eval_variation(
     cfg: CompareConfig, checkpoint: Path, task: str, variation: str, out: Path
 ) -> dict:
     """The stock ``lerobot-eval`` on one variation in dense control; returns its per-episode rows."""
-    from sigma_data.tasks import get_task
+    from sigma_data.suite import get_task
 
     cmd = [
         str(Path(sys.executable).with_name("lerobot-eval")),
@@ -302,7 +302,7 @@ def report(
     cfg: CompareConfig, data: dict[str, Path], trained: dict[str, dict], evals: dict[str, list]
 ) -> str:
     """Markdown: success per variation and policy (Wilson 95%), then each policy's budget and wall time."""
-    from sigma_data.writers import read_sidecar
+    from sigma_data.contract import read_sidecar
 
     policies = [p for p in cfg.policies if p in evals]
     by = {p: {(r["task"], r["variation"]): r for r in evals[p]} for p in policies}

@@ -39,7 +39,7 @@ class DemoConfig:
     output_dir: Path = Path("outputs/demo")
     # A ~2 minute smoke version of every stage (what the tests run).
     quick: bool = False
-    # Tasks collected and evaluated ("lift", "stack", ...; see sigma_data.tasks).
+    # Tasks collected and evaluated ("lift", "stack", ...; see sigma_data.suite).
     tasks: list[str] = field(default_factory=lambda: ["lift", "stack"])
     # Seeds collected per variation for the keyframe (training) dataset, and for the dense dataset.
     episodes: int = 30
@@ -119,7 +119,7 @@ def validate_stage(outputs: dict[str, Path]) -> dict[str, int]:
 
 def train_stage(cfg: DemoConfig, keyframe_root: Path) -> Path:
     from pipelines.training import TrainRun, train
-    from sigma_data.tasks import scene_bounds
+    from sigma_data.suite import scene_bounds
 
     run = TrainRun(
         dataset_root=keyframe_root,

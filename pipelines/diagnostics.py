@@ -257,7 +257,7 @@ class SwapScene:
 
 def swap_scenes(kf: KeyframeSet, max_scenes: int = 20) -> list[SwapScene]:
     """Scenes of ``kf``'s dataset recorded under more than one instruction (same task and seed)."""
-    from sigma_data.writers import SIDECAR, read_sidecar
+    from sigma_data.contract import SIDECAR, read_sidecar
 
     root = Path(kf.dataset.root)
     if not (root / SIDECAR).exists():
@@ -384,7 +384,7 @@ def run_diagnose(cfg: DiagnoseConfig) -> dict[str, Any]:
     """Diagnose one checkpoint or every checkpoint of a run; write the report; return it."""
     from tqdm import tqdm
 
-    from pipelines.evaluate import load_policy
+    from pipelines.checkpoints import load_policy
 
     if (cfg.run is None) == (cfg.checkpoint is None):
         raise ValueError("give exactly one of --run (a lerobot-train output dir) or --checkpoint")

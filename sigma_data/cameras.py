@@ -1,7 +1,7 @@
 """Fast, exact RGB-D rendering of robosuite cameras from ``env.sim``, with calibration at the same state.
 
 :class:`CameraRig` renders named cameras of a robosuite env after ``sim.forward()`` with the "fast" settings of
-robosuite_notes §1.2: MSAA off (``offsamples = 0``, which also makes depth exact at silhouettes), reflections
+docs/robosuite.md §2: MSAA off (``offsamples = 0``, which also makes depth exact at silhouettes), reflections
 and skybox off, offscreen buffer = image size (about 3x faster than robosuite's defaults). Every frame returns,
 per camera, a :class:`~sigma_data.episode.CameraFrame`:
 

@@ -58,7 +58,7 @@ def _import(argv: Sequence[str]) -> int:
 
         summary = import_raw(draccus.parse(config_class=RawImportConfig, args=rest))
     else:
-        from sigma_data.teleop import TeleopConfig, outcome_line, record_teleop
+        from sigma_data.importers.teleop import TeleopConfig, outcome_line, record_teleop
 
         summary, outcomes = record_teleop(draccus.parse(config_class=TeleopConfig, args=rest))
         print(outcome_line(outcomes))
@@ -98,7 +98,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         return 2
     try:
         return COMMANDS[command][0](rest)
-    except (ValueError, FileNotFoundError, FileExistsError) as exc:
+    except (ValueError, OSError) as exc:  # bad input, missing or existing paths, a failed write
         print(f"sigma-data {command}: error: {exc}", file=sys.stderr)
         return 1
 

@@ -216,7 +216,7 @@ class MoveResult:
 
 @dataclass(frozen=True)
 class ServoConfig:
-    """Servo primitive parameters (robosuite_notes §3.2). Units: metres, radians, control steps."""
+    """Servo primitive parameters (docs/robosuite.md §4.2). Units: metres, radians, control steps."""
 
     max_lin_step: float = 0.015  # reference speed limit, m per control step
     max_ang_step: float = 0.15  # reference speed limit, rad per control step
@@ -401,7 +401,7 @@ class EnvDriver:
 
 @dataclass(frozen=True)
 class ExecutorConfig:
-    """:class:`KeyframeExecutor` parameters (robosuite_notes §7.1)."""
+    """:class:`KeyframeExecutor` parameters (docs/robosuite.md §4.3)."""
 
     servo: ServoConfig = ServoConfig(pos_tol=0.005, rot_tol=0.05)
     gripper: GripperConfig = GripperConfig()

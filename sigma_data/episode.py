@@ -9,7 +9,7 @@ the last frame is the final state, and its action is a hold (zero arm motion, la
   for rendering and only stored frames are rendered;
 * ``images``: per camera, stored frames (:class:`CameraStream`), e.g. from a real robot or an image HDF5.
 
-Conventions (the data contract, ``shared/DESIGN.md``): positions in metres, world frame; quaternions xyzw, unit;
+Conventions (the data contract, ``docs/data_contract.md`` and :mod:`sigma_data.contract`): positions in metres, world frame; quaternions xyzw, unit;
 keyframe poses (the keyframe dataset's action) with w >= 0; the state's orientation ``observation.state[3:7]``
 continuous in time (:func:`continuous_quats`: w >= 0 at frame 0, then each frame on the hemisphere of the one
 before, so a policy never sees q jump to -q between two frames; with the gripper pointing down w is near 0 and
@@ -25,31 +25,12 @@ from typing import Any
 
 import numpy as np
 
-STATE_NAMES: tuple[str, ...] = (
-    "eef_x",
-    "eef_y",
-    "eef_z",
-    "eef_qx",
-    "eef_qy",
-    "eef_qz",
-    "eef_qw",
-    "gripper_open",
-    "finger_q1",
-    "finger_q2",
-)
-STATE_DIM = len(STATE_NAMES)
-GRIPPER_OPEN_INDEX = STATE_NAMES.index("gripper_open")
-DENSE_ACTION_NAMES: tuple[str, ...] = ("dx", "dy", "dz", "rx", "ry", "rz", "grip")
-KEYFRAME_ACTION_NAMES: tuple[str, ...] = (
-    "x",
-    "y",
-    "z",
-    "qx",
-    "qy",
-    "qz",
-    "qw",
-    "gripper_open",
-    "ignore_collision",
+from sigma_data.contract import (  # noqa: F401  (re-exported: the names an Episode is written with)
+    DENSE_ACTION_NAMES,
+    GRIPPER_OPEN_INDEX,
+    KEYFRAME_ACTION_NAMES,
+    STATE_DIM,
+    STATE_NAMES,
 )
 
 

@@ -1,12 +1,12 @@
 """Keyframe discovery for demonstrations without an expert, and keyframe bookkeeping.
 
-:func:`discover_keyframes` is the PerAct/ARM "keypoint discovery" heuristic (robosuite_notes §5.1),
+:func:`discover_keyframes` is the PerAct/ARM "keypoint discovery" heuristic (docs/robosuite.md §7.1),
 re-implemented: frame ``i > 0`` is a keyframe if the gripper state changes there, if it is the last frame, or
 if the arm has *stopped* (every arm joint slower than ``velocity_threshold``, the gripper state unchanged around
 ``i``, and no other stopped keyframe in the previous ``stopped_buffer`` frames). Its only dedup: when the last
 two keyframes are consecutive frames, the second-last is dropped. With robosuite/robomimic demos take the
 gripper state from the commands (:func:`sigma_data.episode.gripper_open_from_actions`): a finger-width threshold
-is ambiguous while holding objects. :func:`dedup_by_pose` is the optional extra filter of §5.3.
+is ambiguous while holding objects. :func:`dedup_by_pose` is the optional extra filter of docs/robosuite.md §7.2.
 
 :func:`next_keyframe_index` gives each frame the episode-relative index of the next keyframe strictly after it
 (the last frame points to itself); :func:`compare_keyframes` scores heuristic against expert keyframes.

@@ -28,7 +28,7 @@ from lerobot.envs.configs import EnvConfig
 from lerobot.utils.constants import ACTION, OBS_IMAGES, OBS_STATE
 
 from sigma_data.cameras import DEFAULT_CAMERAS
-from sigma_data.writers import FPS as DENSE_FPS  # robosuite's control frequency, the dense dataset's fps
+from sigma_data.contract import FPS as DENSE_FPS  # robosuite's control frequency, the dense dataset's fps
 
 ENV_TYPE = "sigma_robosuite"
 KEYFRAME_FPS = 2  # nominal: one keyframe step is several control steps; only rollout videos use it

@@ -14,6 +14,7 @@ from typing import Any
 
 import numpy as np
 
+from sigma_data.contract import DENSE_ACTION_DIM
 from sigma_data.episode import (
     STATE_DIM,
     Episode,
@@ -23,7 +24,7 @@ from sigma_data.episode import (
     with_final_keyframe,
 )
 
-ACTION_DIM = 7
+ACTION_DIM = DENSE_ACTION_DIM  # robosuite OSC_POSE delta + gripper
 
 
 def grip_site_pose(env: Any) -> tuple[np.ndarray, np.ndarray]:

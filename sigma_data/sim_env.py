@@ -1,6 +1,6 @@
 """A gymnasium environment over one sigma task, in keyframe or dense control, for closed-loop evaluation.
 
-``SigmaRobosuiteEnv`` wraps one registered task (``sigma_data.tasks``) in one of two control modes:
+``SigmaRobosuiteEnv`` wraps one registered task (``sigma_data.suite``) in one of two control modes:
 
 * ``control="keyframe"`` (sigma's policy): each ``step(action)`` hands the 9-D keyframe ``[x, y, z, qx, qy, qz,
   qw, gripper_open, ignore_collision]`` (world frame, grip site, the keyframe dataset's action) to the
@@ -35,14 +35,13 @@ import gymnasium as gym
 import numpy as np
 
 from sigma_data.cameras import DEFAULT_CAMERAS, CameraRig, RenderConfig
+from sigma_data.contract import ACTION_NAMES
 from sigma_data.control import EnvDriver, ExecutorConfig, KeyframeExecutor
-from sigma_data.episode import DENSE_ACTION_NAMES, KEYFRAME_ACTION_NAMES
 from sigma_data.record import robot_state
-from sigma_data.tasks.registry import TaskSpec, get_task, get_variation, make_env, reset_env
+from sigma_data.suite import TaskSpec, get_task, get_variation, make_env, reset_env
 
 GYM_ID = "sigma/Robosuite-v0"
 DEPTH_SCALE = {"m": 1.0, "mm": 1000.0}  # rendered metres -> the unit handed to the policy
-ACTION_NAMES = {"keyframe": KEYFRAME_ACTION_NAMES, "dense": DENSE_ACTION_NAMES}
 
 
 def parse_task(spec: str) -> tuple[TaskSpec, str | None]:

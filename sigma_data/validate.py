@@ -1,4 +1,4 @@
-"""Check a sigma dataset (dense or keyframe) against the data contract of ``shared/DESIGN.md``.
+"""Check a sigma dataset (dense or keyframe) against the data contract of ``docs/data_contract.md``.
 
 The dataset is opened with stock ``LeRobotDataset`` (so a pass also proves LeRobot can read it); numeric columns
 are read whole from the parquet rows, images are sampled (``frames_per_episode`` per episode) because decoding
@@ -8,6 +8,11 @@ the first offending episode, frame and field; ``errors`` make ``sigma-data valid
 Checks (names as printed):
 
 * ``structure``: state/action/camera features exist with the contract's shapes; depth features flagged.
+* ``rows.count``: each episode's rows are its frames 0..n-1, as many as ``meta/episodes`` lists.
+* ``values.finite``, ``values.plausible``: no NaN/inf; positions within 5 m of the origin, unit state
+  quaternions, finger joints in range, dense end-effector speed below ``max_eef_speed``;
+  ``values.action_range`` warns about dense actions outside robosuite's [-1, 1] OSC input.
+* ``images.decode``: the sampled frames of every camera stream decode (the first failure names its frame).
 * ``depth.unit``, ``depth.range``, ``depth.invalid``: depth in metres (LeRobot's ``depth_unit``, plausible
   values), inside ``depth_range``, and at most ``max_invalid_depth`` of the pixels <= 0 or non-finite.
 * ``intrinsics``: positive focal lengths, last row (0, 0, 1), principal point inside the image, near its centre.
@@ -33,10 +38,28 @@ from typing import Literal
 
 import numpy as np
 
+from sigma_data.contract import (
+    ACTION,
+    DENSE_ACTION_DIM,
+    GRIPPER_OPEN_INDEX,
+    IS_DEPTH_MAP,
+    IS_KEYFRAME,
+    KEYFRAME_ACTION_DIM,
+    NEXT_KEYFRAME_INDEX,
+    STATE,
+    STATE_DIM,
+    STATE_QUAT,
+    WORKSPACE_LIMIT_M,
+    dataset_kind,
+    depth_key,
+    extrinsics_key,
+    implausible_state,
+    intrinsics_key,
+    rgb_cameras,
+    rgb_key,
+)
+
 Status = Literal["ok", "warn", "error", "skip"]
-STATE_DIM = 10
-DENSE_ACTION_DIM = 7
-KEYFRAME_ACTION_DIM = 9
 
 
 @dataclass
@@ -55,6 +78,8 @@ class ValidateConfig:
     depth_range: tuple[float, float] = (0.01, 10.0)
     # Largest tolerated fraction of invalid (<= 0, NaN, inf) depth pixels per camera.
     max_invalid_depth: float = 0.25
+    # A dense episode's end effector faster than this between two frames is an error, m/s (a Panda: ~1.7).
+    max_eef_speed: float = 3.0
     # A gripper change must have a keyframe within this many frames (dense datasets).
     gripper_tolerance: int = 3
     # Keyframe datasets: |action[i][:3] - pose of frame i+1| must be below this, metres.
@@ -125,30 +150,22 @@ class _Checker:
 
     def __init__(self) -> None:
         self.results: list[CheckResult] = []
+        self.row_starts: dict[int, int] = {}  # episode -> its first row in the dataset
 
     def add(self, name: str, status: Status, detail: str, episode=None, frame=None, field=None) -> None:
+        """``frame`` is the frame within ``episode`` (0 = its first frame), not the dataset-wide row."""
         self.results.append(CheckResult(name, status, detail, episode, frame, field))
 
-
-def _camera_names(features: dict) -> list[str]:
-    prefix = "observation.images."
-    return sorted(
-        k[len(prefix) :]
-        for k, f in features.items()
-        if k.startswith(prefix)
-        and f["dtype"] in ("image", "video")
-        and not f.get("info", {}).get("is_depth_map")
-    )
+    def at_row(self, name: str, status: Status, detail: str, episode: int, row: int, field=None) -> None:
+        """:meth:`add` for a dataset-wide ``row`` of ``episode``."""
+        self.add(name, status, detail, int(episode), int(row) - self.row_starts.get(int(episode), 0), field)
 
 
 def _dataset_kind(root: Path, features: dict) -> str:
-    sidecar = root / "meta" / "sigma.json"
-    if sidecar.exists():
-        kind = json.loads(sidecar.read_text()).get("kind")
-        if kind in ("dense", "keyframe"):
-            return kind
-    action_dim = features.get("action", {}).get("shape", (0,))[0]
-    return {DENSE_ACTION_DIM: "dense", KEYFRAME_ACTION_DIM: "keyframe"}.get(action_dim, "unknown")
+    try:
+        return dataset_kind(root, features)
+    except ValueError:
+        return "unknown"  # reported by check_structure
 
 
 def _columns(ds, names: list[str]) -> dict[str, np.ndarray]:
@@ -172,12 +189,12 @@ def _sample_rows(start: int, stop: int, n: int) -> list[int]:
 
 def check_structure(chk: _Checker, features: dict, cameras: list[str], kind: str) -> bool:
     ok = True
-    expect = {"observation.state": (STATE_DIM,)}
+    expect = {STATE: (STATE_DIM,)}
     if kind in ("dense", "keyframe"):
-        expect["action"] = (DENSE_ACTION_DIM,) if kind == "dense" else (KEYFRAME_ACTION_DIM,)
+        expect[ACTION] = (DENSE_ACTION_DIM,) if kind == "dense" else (KEYFRAME_ACTION_DIM,)
     for cam in cameras:
-        expect[f"observation.camera.{cam}.intrinsics"] = (3, 3)
-        expect[f"observation.camera.{cam}.extrinsics"] = (4, 4)
+        expect[intrinsics_key(cam)] = (3, 3)
+        expect[extrinsics_key(cam)] = (4, 4)
     for key, shape in expect.items():
         if key not in features:
             chk.add("structure", "error", "missing feature", field=key)
@@ -189,19 +206,19 @@ def check_structure(chk: _Checker, features: dict, cameras: list[str], kind: str
             ok = False
     if kind == "unknown":
         chk.add(
-            "structure", "error", "cannot tell dense (7-D action) from keyframe (9-D action)", field="action"
+            "structure", "error", "cannot tell dense (7-D action) from keyframe (9-D action)", field=ACTION
         )
         ok = False
     if not cameras:
         chk.add("structure", "error", "no RGB camera features observation.images.<cam>")
         ok = False
-    depth_keys = [f"observation.images.{cam}_depth" for cam in cameras]
+    depth_keys = [depth_key(cam) for cam in cameras]
     rgb_only = kind == "dense" and not any(key in features for key in depth_keys)
     for key in [] if rgb_only else depth_keys:
         if key not in features:
             chk.add("structure", "error", "missing depth feature", field=key)
             ok = False
-        elif not features[key].get("info", {}).get("is_depth_map"):
+        elif not features[key].get("info", {}).get(IS_DEPTH_MAP):
             chk.add("structure", "error", "depth feature lacks info.is_depth_map=True", field=key)
             ok = False
     if ok:
@@ -210,12 +227,149 @@ def check_structure(chk: _Checker, features: dict, cameras: list[str], kind: str
     return ok
 
 
+def check_rows(chk: _Checker, ds, cols: dict[str, np.ndarray], bounds: dict) -> None:
+    """Every episode's rows are its frames 0..n-1, as many as ``meta/episodes`` says (a lost row makes stock
+    LeRobot index past the episode's end)."""
+    frame_index = cols["frame_index"].reshape(-1)
+    meta = {
+        int(e["episode_index"]): int(e["length"])
+        for e in ds.meta.episodes.select_columns(["episode_index", "length"])
+    }
+    problems = []
+    for ep, (start, stop) in bounds.items():
+        got = frame_index[start:stop]
+        expected = meta.get(ep)
+        if expected is None:
+            problems.append((ep, None, f"rows of episode {ep}, which meta/episodes does not list"))
+        elif stop - start != expected:
+            problems.append(
+                (ep, None, f"{stop - start} rows in data/, {expected} in meta/episodes (rows lost or added)")
+            )
+        elif not np.array_equal(got, np.arange(stop - start)):
+            i = int(np.flatnonzero(got != np.arange(stop - start))[0])
+            problems.append(
+                (ep, i, f"frame_index {int(got[i])} where {i} was expected (rows missing or out of order)")
+            )
+    missing = sorted(set(meta) - set(bounds))
+    if missing:
+        problems.append(
+            (missing[0], None, f"{len(missing)} episode(s) listed in meta/episodes have no rows in data/")
+        )
+    if len(frame_index) != ds.meta.total_frames and not problems:
+        problems.append(
+            (None, None, f"{len(frame_index)} rows, meta/info.json says {ds.meta.total_frames} frames")
+        )
+    if problems:
+        ep, frame, detail = problems[0]
+        more = f" (+{len(problems) - 1} more episodes)" if len(problems) > 1 else ""
+        chk.add("rows.count", "error", detail + more, ep, frame, "frame_index")
+    else:
+        chk.add("rows.count", "ok", f"{len(frame_index)} rows = the frames meta/episodes lists")
+
+
+def check_plausible(
+    chk: _Checker, cols: dict[str, np.ndarray], bounds: dict, kind: str, fps: float, cfg
+) -> None:
+    """Physical plausibility: positions inside a generous workspace, unit state quaternions, finger joints in
+    range, a dense episode's end effector no faster than ``max_eef_speed``, dense actions inside the OSC input
+    range (robosuite clips it to [-1, 1])."""
+    state = cols[STATE].astype(np.float64)
+    action = cols[ACTION].astype(np.float64)
+    eps = cols["episode_index"].reshape(-1)
+    limit = WORKSPACE_LIMIT_M
+    found: list[tuple] = []
+    for i in np.flatnonzero(np.isfinite(state).all(axis=1)):  # values.finite reports the others
+        problem = implausible_state(state[i])
+        if problem:
+            found.append((int(i), STATE, problem))
+            break
+    if kind == "keyframe":
+        with np.errstate(invalid="ignore"):
+            far_goal = np.abs(action[:, :3]).max(axis=1) > limit
+        if far_goal.any():
+            i = int(np.flatnonzero(far_goal)[0])
+            found.append(
+                (i, ACTION, f"keyframe at {np.round(action[i, :3], 3).tolist()} m, beyond {limit} m")
+            )
+    else:
+        for start, stop in bounds.values():
+            speed = np.linalg.norm(np.diff(state[start:stop, :3], axis=0), axis=1) * fps
+            if (speed > cfg.max_eef_speed).any():
+                t = int(np.flatnonzero(speed > cfg.max_eef_speed)[0]) + 1
+                found.append(
+                    (
+                        start + t,
+                        STATE,
+                        f"end effector moves {speed[t - 1]:.3g} m/s into this frame "
+                        f"(limit {cfg.max_eef_speed} m/s at {fps:g} fps)",
+                    )
+                )
+                break
+    for i, key, detail in found:
+        chk.at_row("values.plausible", "error", detail, eps[i], i, key)
+    if kind == "dense":
+        with np.errstate(invalid="ignore"):
+            outside = np.abs(action[:, :6]).max(axis=1) > 1 + 1e-6
+        if outside.any():
+            i = int(np.flatnonzero(outside)[0])
+            chk.at_row(
+                "values.action_range",
+                "warn",
+                f"{int(outside.sum())} dense actions outside the OSC input range "
+                f"[-1, 1] (robosuite clips them): {np.round(action[i], 3).tolist()}",
+                eps[i],
+                i,
+                ACTION,
+            )
+    if not found:
+        chk.add(
+            "values.plausible", "ok", f"positions within {limit} m, unit quaternions, finger joints in range"
+        )
+
+
+def check_images_decode(chk: _Checker, ds, features: dict, cameras: list[str], bounds: dict, cfg) -> set[int]:
+    """Sampled frames of every camera stream decode; returns the dataset rows that did not."""
+    keys = [k for cam in cameras for k in (rgb_key(cam), depth_key(cam)) if k in features]
+    image_keys = [k for k in keys if features[k]["dtype"] == "image"]
+    raw = ds.hf_dataset.with_format(None).select_columns(image_keys) if image_keys else None
+    failed: set[int] = set()
+    first = None
+    for ep, (start, stop) in bounds.items():
+        for row in _sample_rows(start, stop, cfg.frames_per_episode):
+            for key in image_keys:
+                try:
+                    value = raw[row][key]  # datasets opens the PNG/TIFF lazily: load() decodes it
+                    if hasattr(value, "load"):
+                        value.load()
+                except Exception as exc:
+                    failed.add(row)
+                    first = first or (ep, row, key, f"image does not decode ({type(exc).__name__}: {exc})")
+            if len(image_keys) < len(keys) and row not in failed:
+                try:
+                    ds[row]
+                except Exception as exc:  # a video frame (LeRobot decodes every video key of a row together)
+                    failed.add(row)
+                    first = first or (
+                        ep,
+                        row,
+                        None,
+                        f"video frames do not decode ({type(exc).__name__}: {exc})",
+                    )
+    if first:
+        ep, row, key, detail = first
+        more = f" ({len(failed)} sampled rows in all)" if len(failed) > 1 else ""
+        chk.at_row("images.decode", "error", detail + more, ep, row, key)
+    else:
+        chk.add("images.decode", "ok", f"{len(keys)} camera streams decode at the sampled frames")
+    return failed
+
+
 def check_calibration(
     chk: _Checker, cols: dict[str, np.ndarray], features: dict, cameras: list[str], eps: np.ndarray, cfg
 ) -> None:
     for cam in cameras:
-        k_key, e_key = f"observation.camera.{cam}.intrinsics", f"observation.camera.{cam}.extrinsics"
-        h, w = features[f"observation.images.{cam}"]["shape"][:2]
+        k_key, e_key = intrinsics_key(cam), extrinsics_key(cam)
+        h, w = features[rgb_key(cam)]["shape"][:2]
         K = cols[k_key].astype(np.float64)
         E = cols[e_key].astype(np.float64)
         bad = (
@@ -231,17 +385,17 @@ def check_calibration(
         off_centre = (np.abs(K[:, 0, 2] - w / 2) > 0.25 * w) | (np.abs(K[:, 1, 2] - h / 2) > 0.25 * h)
         if bad.any():
             i = int(np.flatnonzero(bad)[0])
-            chk.add(
+            chk.at_row(
                 "intrinsics",
                 "error",
                 f"K inconsistent with a {w}x{h} image: {np.round(K[i], 3).tolist()}",
-                int(eps[i]),
+                eps[i],
                 i,
                 k_key,
             )
         elif off_centre.any():
             i = int(np.flatnonzero(off_centre)[0])
-            chk.add("intrinsics", "warn", "principal point far from the image centre", int(eps[i]), i, k_key)
+            chk.at_row("intrinsics", "warn", "principal point far from the image centre", eps[i], i, k_key)
         else:
             chk.add(
                 "intrinsics",
@@ -250,21 +404,21 @@ def check_calibration(
                 field=k_key,
             )
 
-        R = E[:, :3, :3]
+        finite = np.isfinite(E).all(axis=(1, 2))
+        R = np.where(finite[:, None, None], E[:, :3, :3], np.eye(3))
         ortho = np.abs(np.einsum("nji,njk->nik", R, R) - np.eye(3)).max(axis=(1, 2))
         det = np.linalg.det(R)
-        last = np.abs(E[:, 3] - [0, 0, 0, 1]).max(axis=1)
-        bad = (ortho > 1e-3) | (np.abs(det - 1) > 1e-3) | (last > 1e-6) | ~np.isfinite(E).all(axis=(1, 2))
+        last = np.abs(np.where(finite[:, None], E[:, 3], [0, 0, 0, 1]) - [0, 0, 0, 1]).max(axis=1)
+        bad = (ortho > 1e-3) | (np.abs(det - 1) > 1e-3) | (last > 1e-6) | ~finite
         if bad.any():
             i = int(np.flatnonzero(bad)[0])
-            chk.add(
-                "extrinsics",
-                "error",
-                f"not a rigid camera-to-world transform (|RᵀR-I|={ortho[i]:.2g}, det={det[i]:.3f})",
-                int(eps[i]),
-                i,
-                e_key,
-            )
+            if not finite[i]:
+                detail = "NaN or inf in the camera-to-world transform"
+            elif last[i] > 1e-6:
+                detail = f"last row {np.round(E[i, 3], 4).tolist()}, expected [0, 0, 0, 1]"
+            else:
+                detail = f"not a rigid camera-to-world transform (|RᵀR-I|={ortho[i]:.2g}, det={det[i]:.3f})"
+            chk.at_row("extrinsics", "error", detail, eps[i], i, e_key)
         else:
             chk.add("extrinsics", "ok", f"rotations orthonormal (max |RᵀR-I| {ortho.max():.1e})", field=e_key)
 
@@ -272,27 +426,27 @@ def check_calibration(
 def check_eef_projection(
     chk: _Checker, cols: dict[str, np.ndarray], features: dict, cameras: list[str], eps: np.ndarray, cfg
 ) -> None:
-    pos = cols["observation.state"][:, :3].astype(np.float64)
+    pos = cols[STATE][:, :3].astype(np.float64)
     for cam in cameras:
-        E = cols[f"observation.camera.{cam}.extrinsics"].astype(np.float64)
+        E = cols[extrinsics_key(cam)].astype(np.float64)
         if np.abs(E - E[0]).max() > 1e-6:
             continue  # a moving (wrist) camera need not see its own gripper
-        K = cols[f"observation.camera.{cam}.intrinsics"].astype(np.float64)
-        h, w = features[f"observation.images.{cam}"]["shape"][:2]
+        K = cols[intrinsics_key(cam)].astype(np.float64)
+        h, w = features[rgb_key(cam)]["shape"][:2]
         world_to_cam = np.linalg.inv(E)
         p_cam = np.einsum("nij,nj->ni", world_to_cam[:, :3, :3], pos) + world_to_cam[:, :3, 3]
         z = p_cam[:, 2]
         uv = np.einsum("nij,nj->ni", K, p_cam)[:, :2] / np.where(np.abs(z) < 1e-9, 1e-9, z)[:, None]
         inside = (z > 0) & (uv[:, 0] >= 0) & (uv[:, 0] < w) & (uv[:, 1] >= 0) & (uv[:, 1] < h)
         frac = float(inside.mean())
-        key = f"observation.camera.{cam}.extrinsics"
+        key = extrinsics_key(cam)
         if frac < cfg.min_eef_visible:
             i = int(np.flatnonzero(~inside)[0])
-            chk.add(
+            chk.at_row(
                 "eef.projection",
                 "error",
                 f"end effector inside the image in only {frac:.0%} of frames",
-                int(eps[i]),
+                eps[i],
                 i,
                 key,
             )
@@ -300,11 +454,19 @@ def check_eef_projection(
             chk.add("eef.projection", "ok", f"{cam}: end effector inside the image in {frac:.0%} of frames")
 
 
-def check_depth(chk: _Checker, ds, features: dict, cameras: list[str], bounds: dict, cfg) -> None:
+def check_depth(
+    chk: _Checker,
+    ds,
+    features: dict,
+    cameras: list[str],
+    bounds: dict,
+    cfg,
+    skip_rows: set[int] = frozenset(),
+) -> None:
     unit_checked = set()
     lo, hi = cfg.depth_range
     for cam in cameras:
-        key = f"observation.images.{cam}_depth"
+        key = depth_key(cam)
         if key not in features:  # RGB-only dense dataset (check_structure allowed it)
             continue
         unit = features[key].get("info", {}).get("depth_unit")
@@ -314,6 +476,8 @@ def check_depth(chk: _Checker, ds, features: dict, cameras: list[str], bounds: d
         worst_invalid, worst_where, out_of_range, medians = 0.0, None, None, []
         for ep, (start, stop) in bounds.items():
             for row in _sample_rows(start, stop, cfg.frames_per_episode):
+                if row in skip_rows:  # did not decode (images.decode reports it)
+                    continue
                 depth = ds[row][key].numpy().astype(np.float64)  # (1, H, W), metres (depth_output_unit="m")
                 valid = np.isfinite(depth) & (depth > 0)
                 invalid = 1.0 - float(valid.mean())
@@ -334,21 +498,21 @@ def check_depth(chk: _Checker, ds, features: dict, cameras: list[str], bounds: d
                     "error",
                     f"median depth {med:.3g} is not a plausible metric depth (mm stored as m?)",
                     ep,
-                    row,
+                    None if row is None else row - chk.row_starts.get(ep, 0),
                     key,
                 )
             else:
                 chk.add("depth.unit", "ok", f"{cam}: metres (median {med:.2f} m)", field=key)
         if out_of_range:
             ep, row, dmin, dmax = out_of_range
-            chk.add(
+            chk.at_row(
                 "depth.range", "error", f"depth {dmin:.3g}..{dmax:.3g} m outside {lo}..{hi} m", ep, row, key
             )
         else:
             chk.add("depth.range", "ok", f"{cam}: within {lo}..{hi} m", field=key)
         if worst_invalid > cfg.max_invalid_depth:
             ep, row = worst_where
-            chk.add(
+            chk.at_row(
                 "depth.invalid",
                 "error",
                 f"{worst_invalid:.0%} invalid pixels (limit {cfg.max_invalid_depth:.0%})",
@@ -361,14 +525,14 @@ def check_depth(chk: _Checker, ds, features: dict, cameras: list[str], bounds: d
 
 
 def check_dense_keyframes(chk: _Checker, cols: dict[str, np.ndarray], bounds: dict, cfg) -> None:
-    flag_key, next_key = "sigma.is_keyframe", "sigma.next_keyframe_index"
+    flag_key, next_key = IS_KEYFRAME, NEXT_KEYFRAME_INDEX
     if flag_key not in cols or next_key not in cols:
         missing = flag_key if flag_key not in cols else next_key
         chk.add("keyframes.present", "error", "dense dataset without keyframe annotations", field=missing)
         return
     flags = cols[flag_key].reshape(-1).astype(bool)
     nxt = cols[next_key].reshape(-1).astype(np.int64)
-    gripper = cols["observation.state"][:, 7]
+    gripper = cols[STATE][:, GRIPPER_OPEN_INDEX]
     problems: dict[str, tuple] = {}
     counts = []
     for ep, (start, stop) in bounds.items():
@@ -394,9 +558,7 @@ def check_dense_keyframes(chk: _Checker, cols: dict[str, np.ndarray], bounds: di
                 (ep, i, next_key, f"next keyframe {int(n[i])} invalid in a {length}-frame episode"),
             )
         if not np.isin(np.unique(g), (0.0, 1.0)).all():
-            problems.setdefault(
-                "keyframes.labels", (ep, None, "observation.state", "gripper_open not in {0, 1}")
-            )
+            problems.setdefault("keyframes.labels", (ep, None, STATE, "gripper_open not in {0, 1}"))
         for t in np.flatnonzero(np.diff(g) != 0) + 1:
             if np.abs(kfs - t).min() > cfg.gripper_tolerance:
                 problems.setdefault(
@@ -420,14 +582,12 @@ def check_dense_keyframes(chk: _Checker, cols: dict[str, np.ndarray], bounds: di
 
 
 def check_keyframe_goals(chk: _Checker, cols: dict[str, np.ndarray], bounds: dict, cfg) -> None:
-    action = cols["action"].astype(np.float64)
-    state = cols["observation.state"].astype(np.float64)
+    action = cols[ACTION].astype(np.float64)
+    state = cols[STATE].astype(np.float64)
     problems: dict[str, tuple] = {}
     for ep, (start, stop) in bounds.items():
         if stop - start < 2:
-            problems.setdefault(
-                "goals.links", (ep, None, "action", "episode has fewer than 2 frames: no goal")
-            )
+            problems.setdefault("goals.links", (ep, None, ACTION, "episode has fewer than 2 frames: no goal"))
             continue
         a, s = action[start:stop], state[start:stop]
         err = np.linalg.norm(a[:-1, :3] - s[1:, :3], axis=1)
@@ -435,28 +595,32 @@ def check_keyframe_goals(chk: _Checker, cols: dict[str, np.ndarray], bounds: dic
             i = int(np.argmax(err > cfg.goal_tolerance_m))
             problems.setdefault(
                 "goals.links",
-                (ep, i, "action", f"action is {err[i] * 1000:.1f} mm from frame {i + 1}'s pose (its goal)"),
+                (ep, i, ACTION, f"action is {err[i] * 1000:.1f} mm from frame {i + 1}'s pose (its goal)"),
             )
         grip_mismatch = a[:-1, 7] != s[1:, 7]
         if grip_mismatch.any():
             i = int(np.argmax(grip_mismatch))
             problems.setdefault(
-                "goals.links", (ep, i, "action", f"gripper_open differs from frame {i + 1}'s gripper state")
+                "goals.links", (ep, i, ACTION, f"gripper_open differs from frame {i + 1}'s gripper state")
             )
     q = action[:, 3:7]
-    norm_err = np.abs(np.linalg.norm(q, axis=1) - 1)
+    norm = np.linalg.norm(q, axis=1)
     neg_w = q[:, 3] < 0
     eps = np.concatenate([np.full(stop - start, ep) for ep, (start, stop) in bounds.items()])
-    if (norm_err > 1e-3).any():
-        i = int(np.argmax(norm_err > 1e-3))
-        problems["goals.quaternion"] = (int(eps[i]), i, "action", f"quaternion norm {1 + norm_err[i]:.4f}")
+
+    def where(i: int) -> tuple[int, int]:  # (episode, frame within it) of dataset row i
+        return int(eps[i]), i - chk.row_starts.get(int(eps[i]), 0)
+
+    if (np.abs(norm - 1) > 1e-3).any():
+        i = int(np.argmax(np.abs(norm - 1) > 1e-3))
+        problems["goals.quaternion"] = (*where(i), ACTION, f"quaternion norm {norm[i]:.4f}, expected 1")
     elif neg_w.any():
         i = int(np.argmax(neg_w))
-        problems["goals.quaternion"] = (int(eps[i]), i, "action", "quaternion has w < 0 (contract: w >= 0)")
+        problems["goals.quaternion"] = (*where(i), ACTION, "quaternion has w < 0 (contract: w >= 0)")
     flags = action[:, 7:9]
     if not np.isin(flags, (0.0, 1.0)).all():
         i = int(np.flatnonzero(~np.isin(flags, (0.0, 1.0)).all(axis=1))[0])
-        problems["goals.flags"] = (int(eps[i]), i, "action", "gripper_open / ignore_collision not in {0, 1}")
+        problems["goals.flags"] = (*where(i), ACTION, "gripper_open / ignore_collision not in {0, 1}")
     for name in ("goals.links", "goals.quaternion", "goals.flags"):
         if name in problems:
             ep, frame, fld, detail = problems[name]
@@ -468,7 +632,7 @@ def check_keyframe_goals(chk: _Checker, cols: dict[str, np.ndarray], bounds: dic
 def check_state_continuity(chk: _Checker, cols: dict[str, np.ndarray], bounds: dict) -> None:
     """Consecutive frames of an episode: the eef quaternion keeps its hemisphere (q and -q are one rotation, but
     a policy reading the state sees a jump of up to 2 per component)."""
-    q = cols["observation.state"][:, 3:7].astype(np.float64)
+    q = cols[STATE][:, STATE_QUAT].astype(np.float64)
     flips = 0
     first = None
     for ep, (start, stop) in bounds.items():
@@ -500,11 +664,11 @@ def check_language(
     eps = cols["episode_index"].reshape(-1)
     if missing:
         i = missing[0]
-        chk.add(
+        chk.at_row(
             "language.instruction",
             "error",
             f"{len(missing)} frames without an instruction",
-            int(eps[i]),
+            eps[i],
             i,
             "task",
         )
@@ -554,7 +718,7 @@ def validate_dataset(cfg: ValidateConfig) -> ValidationReport:
         raise FileNotFoundError(f"{root}: not a LeRobot dataset (no meta/info.json)")
     ds = LeRobotDataset(cfg.repo_id, root=root, depth_output_unit="m", video_backend="pyav")
     features = ds.meta.features
-    cameras = _camera_names(features)
+    cameras = rgb_cameras(features)
     kind = _dataset_kind(root, features)
     report = ValidationReport(str(root), kind, ds.meta.total_episodes, ds.meta.total_frames, cameras)
     chk = _Checker()
@@ -562,21 +726,25 @@ def validate_dataset(cfg: ValidateConfig) -> ValidationReport:
     if not check_structure(chk, features, cameras, kind):
         return report
 
-    numeric = ["episode_index", "frame_index", "task_index", "observation.state", "action"]
-    numeric += [f"observation.camera.{c}.{m}" for c in cameras for m in ("intrinsics", "extrinsics")]
-    numeric += [k for k in ("sigma.is_keyframe", "sigma.next_keyframe_index") if k in features]
+    numeric = ["episode_index", "frame_index", "task_index", STATE, ACTION]
+    numeric += [key(c) for c in cameras for key in (intrinsics_key, extrinsics_key)]
+    numeric += [k for k in (IS_KEYFRAME, NEXT_KEYFRAME_INDEX) if k in features]
     cols = _columns(ds, numeric)
     eps = cols["episode_index"].reshape(-1)
     bounds = _episode_bounds(eps)
 
-    for key in ("observation.state", "action"):
+    chk.row_starts = {ep: start for ep, (start, _stop) in bounds.items()}
+    check_rows(chk, ds, cols, bounds)
+    for key in (STATE, ACTION):
         bad = ~np.isfinite(cols[key]).all(axis=1)
         if bad.any():
             i = int(np.flatnonzero(bad)[0])
-            chk.add("values.finite", "error", "NaN or inf", int(eps[i]), i, key)
+            chk.at_row("values.finite", "error", "NaN or inf", eps[i], i, key)
+    check_plausible(chk, cols, bounds, kind, ds.meta.fps, cfg)
+    undecodable = check_images_decode(chk, ds, features, cameras, bounds, cfg)
     check_calibration(chk, cols, features, cameras, eps, cfg)
     check_eef_projection(chk, cols, features, cameras, eps, cfg)
-    check_depth(chk, ds, features, cameras, bounds, cfg)
+    check_depth(chk, ds, features, cameras, bounds, cfg, undecodable)
     if kind == "dense":
         check_dense_keyframes(chk, cols, bounds, cfg)
     else:

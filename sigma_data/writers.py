@@ -30,33 +30,31 @@ from typing import Any, Literal
 
 import numpy as np
 
-from sigma_data.episode import (
+from sigma_data.contract import (
+    ACTION,
+    CONVENTIONS,
     DENSE_ACTION_NAMES,
+    FPS,
+    IS_DEPTH_MAP,
+    IS_KEYFRAME,
     KEYFRAME_ACTION_NAMES,
+    NEXT_KEYFRAME_INDEX,
+    ROBOT_TYPE,
+    SIDECAR,
+    SOURCE_FRAME,
+    STATE,
     STATE_NAMES,
-    CameraViews,
-    Episode,
+    STATIC_EXTRINSICS,
+    STATIC_INTRINSICS,
+    depth_key,
+    extrinsics_key,
+    goal_frame,
+    intrinsics_key,
+    read_sidecar,  # noqa: F401  TODO(contract) drop once tests import it from sigma_data.contract
+    rgb_key,
 )
+from sigma_data.episode import CameraViews, Episode
 from sigma_data.keyframes import keyframe_mask, next_keyframe_index
-
-SIDECAR = Path("meta") / "sigma.json"
-FPS = 20
-ROBOT_TYPE = "panda"
-CONVENTIONS = {
-    "quaternion": "xyzw, unit; keyframe actions w >= 0; observation.state continuous in time (w >= 0 at an "
-    "episode's first frame, then each frame on the previous frame's hemisphere)",
-    "pose": "grip site (gripper0_right_grip_site) in the world frame, metres",
-    "extrinsics": "camera-to-world 4x4, OpenCV axes (x right, y down, z forward)",
-    "intrinsics": "3x3 pinhole, f = 0.5 H / tan(fovy / 2), c = (W/2, H/2); pixel centres at +0.5",
-    "depth": "metric z-depth along the optical axis, metres; background clipped to render.max_depth",
-    "images": "upright (row 0 at the top)",
-    "dense_action": "robosuite OSC_POSE delta [dx, dy, dz, rx, ry, rz, grip], base frame, 5 cm / 0.5 rad per unit,"
-    " grip +1 close / -1 open; the final frame holds (zero motion, last grip)",
-    "keyframe_action": "next keyframe [x, y, z, qx, qy, qz, qw, gripper_open, ignore_collision]; the last "
-    "frame repeats its own pose and is a goal only",
-    "gripper_open": "1 if the last commanded grip was open (< 0), else 0",
-    "frames": "frame t is the observation before action t",
-}
 
 ViewsFn = Callable[[int], CameraViews]
 StaticCalibration = Mapping[str, tuple[np.ndarray, np.ndarray]]
@@ -110,24 +108,24 @@ def camera_features(
         if static_calibration and cam in static_calibration:
             K, E = static_calibration[cam]
             rgb_info = {
-                "sigma.intrinsics": np.asarray(K, dtype=np.float32).tolist(),
-                "sigma.extrinsics": np.asarray(E, dtype=np.float32).tolist(),
+                STATIC_INTRINSICS: np.asarray(K, dtype=np.float32).tolist(),
+                STATIC_EXTRINSICS: np.asarray(E, dtype=np.float32).tolist(),
             }
-        feats[f"observation.images.{cam}"] = {
+        feats[rgb_key(cam)] = {
             "dtype": dtype,
             "shape": (h, w, 3),
             "names": ["height", "width", "channels"],
             **({"info": rgb_info} if rgb_info else {}),
         }
         if layout.depth:
-            feats[f"observation.images.{cam}_depth"] = {
+            feats[depth_key(cam)] = {
                 "dtype": dtype,
                 "shape": (h, w, 1),
                 "names": ["height", "width", "channels"],
-                "info": {"is_depth_map": True},
+                "info": {IS_DEPTH_MAP: True},
             }
-        feats[f"observation.camera.{cam}.intrinsics"] = {"dtype": "float32", "shape": (3, 3), "names": None}
-        feats[f"observation.camera.{cam}.extrinsics"] = {"dtype": "float32", "shape": (4, 4), "names": None}
+        feats[intrinsics_key(cam)] = {"dtype": "float32", "shape": (3, 3), "names": None}
+        feats[extrinsics_key(cam)] = {"dtype": "float32", "shape": (4, 4), "names": None}
     return feats
 
 
@@ -141,13 +139,11 @@ def _camera_frame_values(layout: DatasetLayout, views: CameraViews, where: str) 
             raise ValueError(
                 f"{where}: camera '{cam}' rgb is {v.rgb.shape}, expected {(layout.height, layout.width, 3)}"
             )
-        out[f"observation.images.{cam}"] = v.rgb
+        out[rgb_key(cam)] = v.rgb
         if layout.depth:
-            out[f"observation.images.{cam}_depth"] = v.depth.reshape(layout.height, layout.width, 1).astype(
-                np.float32
-            )
-        out[f"observation.camera.{cam}.intrinsics"] = np.asarray(v.intrinsics, dtype=np.float32)
-        out[f"observation.camera.{cam}.extrinsics"] = np.asarray(v.extrinsics, dtype=np.float32)
+            out[depth_key(cam)] = v.depth.reshape(layout.height, layout.width, 1).astype(np.float32)
+        out[intrinsics_key(cam)] = np.asarray(v.intrinsics, dtype=np.float32)
+        out[extrinsics_key(cam)] = np.asarray(v.extrinsics, dtype=np.float32)
     return out
 
 
@@ -185,13 +181,6 @@ def shared_frames(writers: Iterable[SigmaWriter], episode: Episode) -> set[int]:
     """Frames of ``episode`` that more than one of ``writers`` asks for (worth caching once rendered)."""
     needed = [set(w.frame_indices(episode)) for w in writers]
     return set.intersection(*needed) if len(needed) > 1 else set()
-
-
-def read_sidecar(root: Path) -> dict[str, Any]:
-    path = Path(root) / SIDECAR
-    if not path.exists():
-        raise FileNotFoundError(f"{root}: no provenance sidecar {SIDECAR}")
-    return json.loads(path.read_text())
 
 
 class SigmaWriter:
@@ -242,7 +231,7 @@ class SigmaWriter:
             streaming_encoding=streaming_encoding and use_videos,
             depth_encoder=depth_encoder_config(depth_range),
             image_writer_threads=image_writer_threads,
-            video_backend="pyav",  # read-back decoder; torchcodec cannot load here (lerobot_notes §6)
+            video_backend="pyav",  # read-back decoder; torchcodec cannot load here (docs/data_contract.md §9)
             encoder_queue_maxsize=0,  # unbounded: see _wait_for_encoders
         )
         self.provenance: dict[str, Any] = {
@@ -282,12 +271,12 @@ class SigmaWriter:
     ) -> dict[str, dict]:
         """The LeRobot features of this dataset kind; cameras stored as ``dtype`` ("video" or "image")."""
         feats = camera_features(layout, dtype, static_calibration)
-        feats["observation.state"] = {
+        feats[STATE] = {
             "dtype": "float32",
             "shape": (len(STATE_NAMES),),
             "names": list(STATE_NAMES),
         }
-        feats["action"] = {
+        feats[ACTION] = {
             "dtype": "float32",
             "shape": (len(cls.action_names),),
             "names": list(cls.action_names),
@@ -438,8 +427,8 @@ class DenseWriter(SigmaWriter):
     @classmethod
     def _extra_features(cls) -> dict[str, dict]:
         return {
-            "sigma.is_keyframe": {"dtype": "bool", "shape": (1,), "names": None},
-            "sigma.next_keyframe_index": {"dtype": "int64", "shape": (1,), "names": None},
+            IS_KEYFRAME: {"dtype": "bool", "shape": (1,), "names": None},
+            NEXT_KEYFRAME_INDEX: {"dtype": "int64", "shape": (1,), "names": None},
         }
 
     def frame_indices(self, episode: Episode) -> list[int]:
@@ -451,10 +440,10 @@ class DenseWriter(SigmaWriter):
         nxt = next_keyframe_index(episode.keyframe_indices, T)
         for t in range(T):
             values = _camera_frame_values(self.layout, views(t), f"{episode.name} frame {t}")
-            values["observation.state"] = episode.states[t]
-            values["action"] = episode.actions[t]
-            values["sigma.is_keyframe"] = np.array([is_kf[t]])
-            values["sigma.next_keyframe_index"] = np.array([nxt[t]], dtype=np.int64)
+            values[STATE] = episode.states[t]
+            values[ACTION] = episode.actions[t]
+            values[IS_KEYFRAME] = np.array([is_kf[t]])
+            values[NEXT_KEYFRAME_INDEX] = np.array([nxt[t]], dtype=np.int64)
             self._add_frame(values, episode)
         self._save_episode(episode, range(T))
 
@@ -485,7 +474,7 @@ class KeyframeWriter(SigmaWriter):
 
     @classmethod
     def _extra_features(cls) -> dict[str, dict]:
-        return {"sigma.source_frame": {"dtype": "int64", "shape": (1,), "names": None}}
+        return {SOURCE_FRAME: {"dtype": "int64", "shape": (1,), "names": None}}
 
     def chain_starts(self, episode: Episode) -> list[int]:
         last = episode.keyframe_indices[-1]
@@ -506,10 +495,10 @@ class KeyframeWriter(SigmaWriter):
             for i, t in enumerate(frames):
                 if t not in cache:
                     cache[t] = _camera_frame_values(self.layout, views(t), f"{episode.name} frame {t}")
-                goal = frames[min(i + 1, len(frames) - 1)]
+                goal = frames[goal_frame(i, len(frames))]
                 values = dict(cache[t])
-                values["observation.state"] = episode.states[t]
-                values["action"] = pose_of[goal]
-                values["sigma.source_frame"] = np.array([t], dtype=np.int64)
+                values[STATE] = episode.states[t]
+                values[ACTION] = pose_of[goal]
+                values[SOURCE_FRAME] = np.array([t], dtype=np.int64)
                 self._add_frame(values, episode)
             self._save_episode(episode, frames, chain_start=start, source_frames=frames)

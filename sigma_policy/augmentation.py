@@ -1,4 +1,4 @@
-"""SE(3) training augmentation (model_spec §7, RVT ``apply_se3_aug_con`` version 2), applied consistently to the
+"""SE(3) training augmentation (docs/method.md §9, RVT ``apply_se3_aug_con`` version 2), applied consistently to the
 point cloud and the action target.
 
 Per sample: a translation ``t`` uniform in ``[-xyz_range, xyz_range]`` metres per axis (RVT scales its 0.125 by the

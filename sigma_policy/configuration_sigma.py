@@ -3,7 +3,7 @@
 Presets (``--policy.preset=paper|small``). Every architecture / schedule field left unset (``None``) is filled
 from the preset in ``__post_init__``; a field given explicitly (CLI or ``config.json``) always wins.
 
-| field | paper (model_spec §3.1, §8) | small (2 CPU cores, minutes) |
+| field | paper (docs/method.md §5, §10) | small (2 CPU cores, minutes) |
 |---|---|---|
 | img_size / patch_size | 220 / 11 (20x20 tokens per view) | 64 / 8 (8x8 tokens per view) |
 | im_channels / final_dim | 64 / 64 | 16 / 16 |
@@ -29,7 +29,7 @@ heads for its 25 K-step GPU schedule.
 ``paper`` has 38.26 M parameters with the contrastive heads and 36.03 M at inference (with 77 x 512 CLIP tokens;
 the default MiniLM text encoder's 384-d tokens make it 0.34 % smaller).
 
-Paper-vs-code discrepancies (model_spec §12), each a field; default and reason:
+Paper-vs-code discrepancies (docs/method.md §13), each a field; default and reason:
 
 1. Queries — ``num_queries=1``, ``query_attention="self"`` (released code: one query token, full self-attention
    over [query, image tokens]). Paper: 5 queries with cross-attention (``num_queries=5, query_attention="cross"``).
@@ -73,7 +73,6 @@ ignore_collision], an absolute world-frame next-keyframe pose (quaternion xyzw, 
 
 from __future__ import annotations
 
-import json
 import math
 from dataclasses import dataclass, field, fields
 from pathlib import Path
@@ -83,6 +82,16 @@ from lerobot.configs.policies import PreTrainedConfig
 from lerobot.configs.types import FeatureType, NormalizationMode
 from lerobot.optim.schedulers import CosineDecayWithWarmupSchedulerConfig
 
+from sigma_data.contract import (  # the data contract: the only sigma_data module the policy uses
+    DEPTH_SUFFIX,
+    IMAGE_PREFIX,
+    KEYFRAME_ACTION_DIM,
+    depth_key,
+    extrinsics_key,
+    intrinsics_key,
+    recorded_bounds,
+    rgb_key,
+)
 from sigma_policy.lamb import LambConfig
 from sigma_policy.network import NetworkConfig
 
@@ -137,12 +146,9 @@ PRESETS: dict[str, dict[str, Any]] = {
     },
 }
 
-ACTION_DIM = 9
+ACTION_DIM = KEYFRAME_ACTION_DIM
 # A 1 m box over robosuite's table (x toward the robot's front, z up; the table top is at z = 0.8 m).
 DEFAULT_SCENE_BOUNDS = [-0.4, -0.55, 0.75, 0.6, 0.5, 1.75]
-CALIBRATION_PREFIX = "observation.camera."
-IMAGE_PREFIX = "observation.images."
-DEPTH_SUFFIX = "_depth"
 
 
 @PreTrainedConfig.register_subclass("sigma")
@@ -317,10 +323,10 @@ class SigmaConfig(PreTrainedConfig):
     @staticmethod
     def camera_keys(cam: str) -> dict[str, str]:
         return {
-            "rgb": f"{IMAGE_PREFIX}{cam}",
-            "depth": f"{IMAGE_PREFIX}{cam}{DEPTH_SUFFIX}",
-            "intrinsics": f"{CALIBRATION_PREFIX}{cam}.intrinsics",
-            "extrinsics": f"{CALIBRATION_PREFIX}{cam}.extrinsics",
+            "rgb": rgb_key(cam),
+            "depth": depth_key(cam),
+            "intrinsics": intrinsics_key(cam),
+            "extrinsics": extrinsics_key(cam),
         }
 
     def camera_names(self) -> list[str]:
@@ -341,13 +347,7 @@ class SigmaConfig(PreTrainedConfig):
         """Fill ``scene_bounds`` when unset: the union of the task boxes a sigma dataset records in
         ``meta/sigma.json`` (``"bounds": {task: box}``), else :data:`DEFAULT_SCENE_BOUNDS`. Returns the box."""
         if self.scene_bounds is None:
-            boxes = []
-            if dataset_root is not None:
-                sidecar = Path(dataset_root) / "meta" / "sigma.json"
-                try:
-                    boxes = list(json.loads(sidecar.read_text()).get("bounds", {}).values())
-                except (OSError, ValueError):
-                    boxes = []
+            boxes = recorded_bounds(dataset_root) if dataset_root is not None else []
             if boxes:
                 lo = [min(b[i] for b in boxes) for i in range(3)]
                 hi = [max(b[i] for b in boxes) for i in range(3, 6)]

@@ -1,4 +1,4 @@
-"""Contrastive imitation learning (model_spec §4): two symmetric InfoNCE terms with a learnable temperature.
+"""Contrastive imitation learning (docs/method.md §8): two symmetric InfoNCE terms with a learnable temperature.
 
 * state ↔ language:        ``L_sl   = ½ [CE(s · v̂ l̂_allᵀ) + CE(s · l̂ v̂_allᵀ)]``
 * (state, language) ↔ goal: ``L_goal = ½ [CE(s · q̂ ĝ_allᵀ) + CE(s · ĝ q̂_allᵀ)]``

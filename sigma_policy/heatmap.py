@@ -3,7 +3,7 @@
 Pixel convention: the renderer's exact alignment (``sigma_policy.renderer``): continuous coordinates ``(u, v)``,
 pixel ``(row i, col j)`` centred at ``(j + 0.5, i + 0.5)``.
 
-Back-projection (model_spec §2.5, §11.3). Candidates are the ``S^3`` cube voxel centres
+Back-projection (docs/method.md §6.2). Candidates are the ``S^3`` cube voxel centres
 ``g_k = -1 + (2k + 1) / S``. With exact alignment a voxel centre projects exactly onto a pixel centre in every
 view (``(1 +- g_k) S / 2 = k + 0.5`` or ``S - k - 0.5``), so RVT's 4-neighbour interpolation reduces to reading
 one pixel, and each view's score depends on only two of the three voxel indices. The score of voxel ``(a, b, c)``
@@ -34,7 +34,7 @@ def gaussian_heatmaps(uv: Tensor, img_size: int, sigma: float = 1.5) -> Tensor:
     """Gaussian targets ``(B, V, H, W)`` centred at continuous pixel coordinates ``uv (B, V, 2)`` (u = column).
 
     ``exp(-d^2 / (2 sigma^2))`` with ``d`` the distance from ``(u, v)`` to each pixel centre, zero beyond 3 sigma,
-    normalised to sum 1 per view (model_spec §6). A view whose target lies more than 3 sigma outside the image is
+    normalised to sum 1 per view (docs/method.md §6.1). A view whose target lies more than 3 sigma outside the image is
     all zeros.
     """
     if uv.ndim != 3 or uv.shape[-1] != 2:

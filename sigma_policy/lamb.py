@@ -1,4 +1,4 @@
-"""LAMB as used by Σ-agent / RVT (model_spec §8), and its LeRobot ``OptimizerConfig`` (``--optimizer.type=lamb``).
+"""LAMB as used by Σ-agent / RVT (docs/method.md §10), and its LeRobot ``OptimizerConfig`` (``--optimizer.type=lamb``).
 
 Per parameter p with gradient g (no bias correction):
 

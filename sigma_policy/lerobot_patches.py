@@ -1,4 +1,4 @@
-"""Result-identical speed fixes for LeRobot 0.6.1's multi-frame reads, installed when sigma is imported.
+"""Result-identical speed fixes for LeRobot 0.6.1's multi-frame reads, installed by :func:`install`.
 
 With ``delta_timestamps`` (sigma reads the current frame and its goal: ``observation_delta_indices=[0, 1]``),
 ``DatasetReader._query_hf_dataset`` fetches every key separately with ``hf_dataset[key][rows]``. Under LeRobot's
@@ -23,7 +23,9 @@ A log filter shortens one LeRobot warning: on machines without FFmpeg's shared l
 need them: PyAV ships its own), LeRobot logs torchcodec's loading tracebacks for every FFmpeg version at every
 ``lerobot-train`` start (~150 lines) before falling back to PyAV. The filter keeps the warning as one line.
 
-Set ``SIGMA_NO_LEROBOT_PATCHES=1`` to leave LeRobot untouched.
+``install`` runs when LeRobot loads sigma's plugin entry point (``lerobot_policy_sigma``: ``lerobot-train``,
+``lerobot-eval``) and when a ``SigmaPolicy`` is built; ``import sigma_policy`` alone changes nothing. Set
+``SIGMA_NO_LEROBOT_PATCHES=1`` to leave LeRobot untouched.
 """
 
 from __future__ import annotations

@@ -8,10 +8,10 @@ Per sample and frame (current frame i, and in training its goal, keyframe i+1, f
 2. Training only: SE(3) augmentation (±``aug_translation_range`` m, ±``aug_yaw_range_deg`` yaw about the target
    position; the goal gets its own draw, pivoting on the goal frame's end-effector position).
 3. Crop to ``scene_bounds``, map to the canonical cube [-1, 1]^3, render 5 orthographic virtual views
-   (B, 5, 10, img_size, img_size); training adds the uniform render noise of model_spec §2.3 on channels 0-6.
+   (B, 5, 10, img_size, img_size); training adds the uniform render noise of docs/method.md §4.3 on channels 0-6.
 4. The network (``network.py``) with frozen, cached text-encoder tokens of ``task``.
 
-Losses (model_spec §6): translation = soft-target cross-entropy of each view's heatmap against a Gaussian
+Losses (docs/method.md §6.1, §7): translation = soft-target cross-entropy of each view's heatmap against a Gaussian
 (sigma ``gt_heatmap_sigma`` px) at the projected target; 3 x ``num_rotation_bins`` Euler-bin CE; gripper CE;
 collision CE; BC = their sum. Total = ``bc_lambda`` · BC + (1 − ``bc_lambda``) · contrastive, or BC alone with
 ``use_contrastive=False``.
@@ -31,8 +31,10 @@ from typing import Any
 import torch
 import torch.nn.functional as F
 from lerobot.policies.pretrained import PreTrainedPolicy
+from lerobot.utils.constants import ACTION, OBS_STATE
 from torch import Tensor
 
+from sigma_policy import lerobot_patches
 from sigma_policy.augmentation import se3_augment
 from sigma_policy.configuration_sigma import SigmaConfig
 from sigma_policy.contrastive import contrastive_losses, instruction_ids
@@ -82,6 +84,7 @@ class SigmaPolicy(PreTrainedPolicy):
     ):
         super().__init__(config)
         del dataset_stats, kwargs  # no statistics needed: the scene box is the normalisation
+        lerobot_patches.install()  # faster multi-frame reads of the datasets this policy trains on (idempotent)
         config.validate_features()
         config.resolve_scene_bounds(getattr(dataset_meta, "root", None))
         self.config: SigmaConfig = config
@@ -154,7 +157,7 @@ class SigmaPolicy(PreTrainedPolicy):
         contrastive loss, weighted by ``bc_lambda``.
         """
         cfg = self.config
-        action = batch["action"].float()
+        action = batch[ACTION].float()
         if action.ndim != 2 or action.shape[1] != 9:
             raise ValueError(f"batch['action'] must be (B, 9), got {tuple(action.shape)}")
         tasks = self._tasks(batch, action.shape[0])
@@ -173,7 +176,7 @@ class SigmaPolicy(PreTrainedPolicy):
         goal_views = None
         if cfg.use_contrastive:
             goal = self._cloud(batch, t=1)
-            state = self._take(batch, "observation.state", t=1, item_ndim=1).float()
+            state = self._take(batch, OBS_STATE, t=1, item_ndim=1).float()
             goal_points, *_ = se3_augment(
                 goal.points,
                 state[:, :3],
@@ -386,7 +389,7 @@ class SigmaPolicy(PreTrainedPolicy):
         tokens, sentence = self._language(tasks)
         proprio = None
         if self.config.use_proprio:
-            proprio = self._take(batch, "observation.state", 0, 1)[:, 7:10].float()
+            proprio = self._take(batch, OBS_STATE, 0, 1)[:, 7:10].float()
         device = views.device
         autocast = (
             torch.autocast("cuda", dtype=torch.bfloat16)

@@ -4,11 +4,11 @@ Conventions
 - Depth is metric z-depth along the optical axis, in metres (robosuite's ``get_real_depth_map`` output).
 - Intrinsics ``K`` are 3x3 pinhole matrices in pixels. Pixel index ``(row v, col u)`` has its centre at
   continuous image coordinates ``(u + 0.5, v + 0.5)``: this is robosuite's convention (its ``cx = W / 2``),
-  see robosuite_notes §2.3. Back-projection: ``x = (u + 0.5 - cx) z / fx``, ``y = (v + 0.5 - cy) z / fy``.
+  see docs/robosuite.md §3.5. Back-projection: ``x = (u + 0.5 - cx) z / fx``, ``y = (v + 0.5 - cy) z / fy``.
 - Extrinsics are camera-to-world 4x4 matrices in OpenCV camera axes (x right, y down, z forward).
 - Invalid depth (<= 0, NaN or inf) gives NaN points, which :func:`bounds_mask` rejects.
 - Scene bounds are ``(xmin, ymin, zmin, xmax, ymax, zmax)`` in metres. The canonical cube is ``[-1, 1]^3``:
-  ``p_cube = (p - mid) * scale`` with ``mid`` the box centre and ``scale = 2 / max extent`` (model_spec §1.3,
+  ``p_cube = (p - mid) * scale`` with ``mid`` the box centre and ``scale = 2 / max extent`` (docs/method.md §3,
   ``place_with_mean=False``), so the longest box axis spans the cube exactly and the others lie inside it.
 """
 

@@ -19,7 +19,8 @@ from lerobot.processor.factory import make_default_policy_processor_steps, make_
 from lerobot.processor.pipeline import ObservationProcessorStep, ProcessorStepRegistry
 from torch import Tensor
 
-from sigma_policy.configuration_sigma import CALIBRATION_PREFIX, SigmaConfig
+from sigma_data.contract import CALIBRATION_PREFIX
+from sigma_policy.configuration_sigma import SigmaConfig
 
 CALIBRATION_ITEM_NDIM = 2  # (3, 3) intrinsics and (4, 4) extrinsics
 

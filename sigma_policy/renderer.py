@@ -1,6 +1,6 @@
 """Pure-PyTorch orthographic virtual-view renderer (replaces RVT-1's PyTorch3D point renderer).
 
-Five fixed orthographic views of the canonical cube ``[-1, 1]^3`` (model_spec §2.1, hard-coded), each
+Five fixed orthographic views of the canonical cube ``[-1, 1]^3`` (docs/method.md §4.1, hard-coded), each
 ``img_size`` x ``img_size`` pixels. For a cube point ``(x, y, z)`` and ``S = img_size``:
 
 ==========  ==================  ==================  ================
@@ -18,7 +18,7 @@ Pixel convention (exact alignment). ``u, v`` are continuous image coordinates in
 :meth:`VirtualViewRenderer.project` returns these coordinates unchanged, so a point projects onto the pixel
 that rasterises it (``floor(u), floor(v)``), and the heatmap module evaluates Gaussians at pixel centres
 ``j + 0.5``. RVT instead subtracts ``1/S`` from PyTorch3D's screen coordinates and treats integer indices as
-centres, which places its labels about half a pixel off the rasterised pixels (model_spec §2.4, quirk 13);
+centres, which places its labels about half a pixel off the rasterised pixels (docs/method.md §13, item 13);
 sigma does not reproduce that quirk.
 
 Splat semantics. Every point is a disc of radius ``radius_px`` pixels (default 1.32 px = PyTorch3D's 0.012 NDC

@@ -5,7 +5,7 @@ Euler convention: scipy's ``"xyz"`` (lower case = extrinsic): rotate about the f
 ``quaternion_to_discrete_euler``). Extraction returns roll, yaw in (-180, 180] and pitch in [-90, 90]; at the
 gimbal lock (|pitch| = 90) yaw is set to 0 and roll absorbs it.
 
-Rotation labels (model_spec §6): Euler angles with the **gimbal fix** (a pitch within 1 degree of +-90 is snapped
+Rotation labels (docs/method.md §7): Euler angles with the **gimbal fix** (a pitch within 1 degree of +-90 is snapped
 to exactly +-90 and the angles are re-derived, so yaw = 0 and roll carries the remaining freedom), then
 ``bin = round((angle + 180) / res) mod num_bins`` with ``res = 360 / num_bins`` (5 degrees for 72 bins); bin ``i``
 decodes to ``i * res - 180`` degrees.

@@ -1,6 +1,6 @@
 """Frozen text encoders for instructions, run once per distinct instruction and cached in memory.
 
-- :class:`CLIPTextEncoder`: CLIP's text tower through transformers (the paper's choice; model_spec §1.5).
+- :class:`CLIPTextEncoder`: CLIP's text tower through transformers (the paper's choice; docs/method.md §11).
   ``tokens`` = ``last_hidden_state`` after the final LayerNorm at all ``max_length`` positions (padded to
   ``max_length``, no mask, as Σ-agent), ``sentence`` = ``pooler_output`` (the end-of-text row, no projection).
 - :class:`MiniLMTextEncoder`: the offline default, sentence-transformers' all-MiniLM-L6-v2 with real pretrained

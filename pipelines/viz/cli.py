@@ -25,11 +25,11 @@ import rerun.blueprint as rrb
 from pipelines.viz.blueprints import episode_blueprint, policy_blueprint
 from pipelines.viz.episode import (
     EpisodeLogOptions,
-    detect_dataset_kind,
     discover_cameras,
     load_episode_dataset,
     log_episode,
 )
+from sigma_data.contract import dataset_kind
 
 logger = logging.getLogger(__name__)
 SUBCOMMANDS = ("episode", "policy")
@@ -101,7 +101,7 @@ def run_episode_view(cfg: EpisodeViewConfig) -> str:
     if cfg.root is None:
         raise ValueError("sigma-viz episode: --root (the local dataset directory) is required")
     ds = load_episode_dataset(cfg.root, cfg.episode_index, cfg.repo_id)
-    kind = detect_dataset_kind(Path(cfg.root), ds.features)
+    kind = dataset_kind(Path(cfg.root), ds.features)
     cameras = [c.name for c in discover_cameras(ds.features)]
     blueprint = episode_blueprint(cameras)
     rec = open_recording(f"sigma/{Path(cfg.root).name}/episode_{cfg.episode_index}", cfg, blueprint)
@@ -120,7 +120,7 @@ def run_policy_view(cfg: PolicyViewConfig) -> str:
     from lerobot.datasets.factory import resolve_delta_timestamps
     from torch.utils.data import default_collate
 
-    from pipelines.evaluate import load_policy
+    from pipelines.checkpoints import load_policy
     from pipelines.viz.policy import DEFAULT_VIEW_NAMES, log_policy_frame, policy_frame_outputs
 
     if cfg.checkpoint is None or cfg.root is None:

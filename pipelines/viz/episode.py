@@ -19,11 +19,9 @@ steps from keyframe to keyframe).
 
 from __future__ import annotations
 
-import json
 import logging
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Literal
 
 import numpy as np
 import rerun as rr
@@ -31,16 +29,22 @@ import torch
 from lerobot.datasets import LeRobotDataset, LeRobotDatasetMetadata
 from tqdm import tqdm
 
+from sigma_data.contract import (
+    ACTION,
+    IS_KEYFRAME,
+    NEXT_KEYFRAME_INDEX,
+    STATE,
+    STATIC_EXTRINSICS,
+    STATIC_INTRINSICS,
+    DatasetKind,
+    extrinsics_key,
+    intrinsics_key,
+    rgb_cameras,
+    rgb_key,
+)
+
 logger = logging.getLogger(__name__)
 
-DatasetKind = Literal["dense", "keyframe"]
-DENSE_ACTION_DIM = 7
-KEYFRAME_ACTION_DIM = 9
-STATE_KEY = "observation.state"
-ACTION_KEY = "action"
-IS_KEYFRAME_KEY = "sigma.is_keyframe"
-NEXT_KEYFRAME_KEY = "sigma.next_keyframe_index"
-SIDECAR = Path("meta") / "sigma.json"
 AXIS_LENGTH_M = 0.05
 OPEN_COLOR = (40, 200, 80)
 CLOSED_COLOR = (230, 60, 40)
@@ -106,18 +110,13 @@ def discover_cameras(features: dict[str, dict]) -> list[CameraFeatures]:
     Raises ``ValueError`` naming the camera when it has neither per-frame nor static calibration.
     """
     cameras = []
-    for key, feat in features.items():
-        if not key.startswith("observation.images.") or feat.get("info", {}).get("is_depth_map", False):
-            continue
-        if feat["dtype"] not in ("image", "video"):
-            continue
-        name = key.removeprefix("observation.images.")
+    for name in rgb_cameras(features):
+        key = rgb_key(name)
         depth = f"{key}_depth" if f"{key}_depth" in features else None
-        k_key = f"observation.camera.{name}.intrinsics"
-        e_key = f"observation.camera.{name}.extrinsics"
-        info = feat.get("info") or {}
-        static_k = info.get("sigma.intrinsics")
-        static_e = info.get("sigma.extrinsics")
+        k_key, e_key = intrinsics_key(name), extrinsics_key(name)
+        info = features[key].get("info") or {}
+        static_k = info.get(STATIC_INTRINSICS)
+        static_e = info.get(STATIC_EXTRINSICS)
         cam = CameraFeatures(
             name=name,
             rgb=key,
@@ -141,27 +140,6 @@ def discover_cameras(features: dict[str, dict]) -> list[CameraFeatures]:
     return cameras
 
 
-def detect_dataset_kind(root: Path, features: dict[str, dict]) -> DatasetKind:
-    """``kind`` from ``meta/sigma.json`` if present, else from the action dimension (7 dense, 9 keyframe)."""
-    sidecar = Path(root) / SIDECAR
-    if sidecar.exists():
-        kind = json.loads(sidecar.read_text()).get("kind")
-        if kind not in ("dense", "keyframe"):
-            raise ValueError(f"{sidecar}: field 'kind' is {kind!r}, expected 'dense' or 'keyframe'")
-        return kind
-    if ACTION_KEY not in features:
-        raise ValueError(f"{root}: no {SIDECAR} and no 'action' feature to infer the dataset kind from")
-    dim = int(features[ACTION_KEY]["shape"][-1])
-    if dim == DENSE_ACTION_DIM:
-        return "dense"
-    if dim == KEYFRAME_ACTION_DIM:
-        return "keyframe"
-    raise ValueError(
-        f"{root}: no {SIDECAR} and 'action' has {dim} dims; expected {DENSE_ACTION_DIM} (dense) "
-        f"or {KEYFRAME_ACTION_DIM} (keyframe)"
-    )
-
-
 def _names(features: dict[str, dict], key: str) -> list[str]:
     feat = features[key]
     dim = int(feat["shape"][-1])
@@ -173,15 +151,15 @@ def _names(features: dict[str, dict], key: str) -> list[str]:
 
 def load_episode_tracks(ds: LeRobotDataset, kind: DatasetKind) -> EpisodeTracks:
     """Read the numeric columns of the (single-episode) dataset without decoding any image."""
-    for key in (STATE_KEY, ACTION_KEY):
+    for key in (STATE, ACTION):
         if key not in ds.features:
             raise ValueError(f"{ds.root}: missing feature {key!r} (required by the sigma data contract)")
-    cols = ["frame_index", "timestamp", STATE_KEY, ACTION_KEY]
+    cols = ["frame_index", "timestamp", STATE, ACTION]
     if kind == "dense":
-        for key in (IS_KEYFRAME_KEY, NEXT_KEYFRAME_KEY):
+        for key in (IS_KEYFRAME, NEXT_KEYFRAME_INDEX):
             if key not in ds.features:
                 raise ValueError(f"{ds.root}: dense dataset lacks the keyframe column {key!r}")
-        cols += [IS_KEYFRAME_KEY, NEXT_KEYFRAME_KEY]
+        cols += [IS_KEYFRAME, NEXT_KEYFRAME_INDEX]
     table = ds.hf_dataset.with_format(None).select_columns([*cols, "task_index"])[:]
     order = np.argsort(np.asarray(table["frame_index"]))
     tasks_df = ds.meta.tasks
@@ -193,28 +171,26 @@ def load_episode_tracks(ds: LeRobotDataset, kind: DatasetKind) -> EpisodeTracks:
     tracks = EpisodeTracks(
         frame_index=col("frame_index", np.int64),
         timestamps=col("timestamp", np.float64),
-        state=col(STATE_KEY, np.float32),
-        action=col(ACTION_KEY, np.float32),
-        state_names=_names(ds.features, STATE_KEY),
-        action_names=_names(ds.features, ACTION_KEY),
+        state=col(STATE, np.float32),
+        action=col(ACTION, np.float32),
+        state_names=_names(ds.features, STATE),
+        action_names=_names(ds.features, ACTION),
         tasks=[index_to_task[int(table["task_index"][i])] for i in order],
     )
     if not np.array_equal(tracks.frame_index, np.arange(len(order))):
         raise ValueError(f"{ds.root}: frame_index of the episode is not 0..{len(order) - 1}")
     if kind == "dense":
-        tracks.is_keyframe = col(IS_KEYFRAME_KEY, bool).reshape(-1)
-        tracks.next_keyframe = col(NEXT_KEYFRAME_KEY, np.int64).reshape(-1)
+        tracks.is_keyframe = col(IS_KEYFRAME, bool).reshape(-1)
+        tracks.next_keyframe = col(NEXT_KEYFRAME_INDEX, np.int64).reshape(-1)
         n = len(tracks.frame_index)
         bad = (tracks.next_keyframe < 0) | (tracks.next_keyframe >= n)
         if bad.any():
             raise ValueError(
-                f"{ds.root}: {NEXT_KEYFRAME_KEY} out of the episode range [0, {n}) at frames "
+                f"{ds.root}: {NEXT_KEYFRAME_INDEX} out of the episode range [0, {n}) at frames "
                 f"{np.flatnonzero(bad)[:5].tolist()}"
             )
     if tracks.state.shape[1] < 8:
-        raise ValueError(
-            f"{ds.root}: {STATE_KEY} has {tracks.state.shape[1]} dims, need >= 8 (pose + gripper)"
-        )
+        raise ValueError(f"{ds.root}: {STATE} has {tracks.state.shape[1]} dims, need >= 8 (pose + gripper)")
     return tracks
 
 
@@ -448,7 +424,7 @@ def log_frame(
         n_points = len(keep)
         rec.log("world/point_cloud", rr.Points3D(xyz[keep], colors=rgb[keep], radii=options.point_radius_m))
 
-    state = item["observation.state"].numpy()
+    state = item[STATE].numpy()
     rec.log(
         "world/eef",
         rr.Transform3D(translation=state[:3], quaternion=_quat(state[3:7])),

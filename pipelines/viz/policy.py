@@ -1,6 +1,6 @@
 """Policy viewer: what the Σ-agent policy saw and predicted for one decision step, logged to Rerun.
 
-Inputs follow ``model_spec.md`` §2: ``V`` orthographic virtual views (default 5: top, front, back, left,
+Inputs follow docs/method.md §4: ``V`` orthographic virtual views (default 5: top, front, back, left,
 right) of ``C = 10`` channels (0-2 xyz cube coordinates in [-1, 1], 3-5 rgb in [0, 1], 6 depth = view z minus
 its mean with empty pixels at -1, 7-9 pixel location), the per-view translation heatmaps (probabilities, each
 view sums to 1), the predicted and ground-truth 9-D keyframe actions ``[x, y, z, qx, qy, qz, qw, gripper_open,
@@ -24,12 +24,14 @@ import numpy as np
 import rerun as rr
 import torch
 
+from sigma_data.contract import KEYFRAME_ACTION_DIM
+
 DEFAULT_VIEW_NAMES = ("top", "front", "back", "left", "right")
 XYZ_CHANNELS = slice(0, 3)
 RGB_CHANNELS = slice(3, 6)
 DEPTH_CHANNEL = 6
 MIN_CHANNELS = 7
-ACTION_DIM = 9
+ACTION_DIM = KEYFRAME_ACTION_DIM
 PRED_COLOR = (255, 170, 0)
 GT_COLOR = (0, 200, 255)
 PEAK_COLOR = (255, 255, 255)
@@ -180,7 +182,7 @@ def log_policy_frame(
             collision_probs: (2,) [avoid, ignore]. Each may be None.
         instruction: the language instruction.
         root: entity path prefix (matches :func:`pipelines.viz.blueprints.policy_blueprint`).
-        view_names: names of the V views; default top, front, back, left, right (model_spec §2.1 order).
+        view_names: names of the V views; default top, front, back, left, right (docs/method.md §4.1 order).
         gt_pixels, pred_pixels: optional (V, 2) continuous pixel coordinates (u = column, v = row, pixel
             centres at +0.5) of the ground-truth / predicted translation in each view.
         point_budget: the cloud is evenly subsampled to at most this many points.

@@ -28,7 +28,7 @@ from sigma_data.control import (
 )
 
 if TYPE_CHECKING:
-    from sigma_data.tasks.registry import Variation
+    from sigma_data.tasks.spec import Variation
 
 
 class ExpertFailure(RuntimeError):  # noqa: N818  (name fixed by the tasks_api contract)

@@ -7,7 +7,7 @@ small servo moves with a keyframe every third move (1) -> pull the door open alo
 axis until the hinge passes 0.35 rad, a keyframe every third move and at the end (1).
 
 A top-down grasp makes the wrist links hit the door panel, so the hand approaches along the latch axis with
-the fingers closing vertically (robosuite_notes §3.4). Turning the lever turns the hand about its approach
+the fingers closing vertically (docs/robosuite.md §6). Turning the lever turns the hand about its approach
 axis, i.e. mostly the wrist joint 7 (range +-2.9 rad): the latch tip clears the frame only beyond ~1.25 rad of
 lever turn, and from the wrist angle the direct reorientation gives (~2.1 rad) the turn runs into the joint
 limit at ~1.2 rad (the door then sticks at ~0.12 rad). So the fingers grasp with site x pointing *up*, which
@@ -28,7 +28,7 @@ from sigma_data.experts.base import EpisodeRecorder, ExpertFailure, WaypointArm
 from sigma_data.tasks.door import hinge_angle
 
 if TYPE_CHECKING:
-    from sigma_data.tasks.registry import Variation
+    from sigma_data.tasks.spec import Variation
 
 STANDOFF = 0.18  # m in front of the handle along the latch axis
 WRIST_PRE_TURN = np.pi / 2  # rad of site yaw before tilting the hand: joint 7 moves by about minus this

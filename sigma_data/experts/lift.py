@@ -14,7 +14,7 @@ from sigma_data.control import body_pose, closest_symmetric_yaw, grip_site_frame
 from sigma_data.experts.base import EpisodeRecorder, WaypointArm, check_grasp
 
 if TYPE_CHECKING:
-    from sigma_data.tasks.registry import Variation
+    from sigma_data.tasks.spec import Variation
 
 PREGRASP_HEIGHT = 0.08
 GRASP_OFFSET = -0.003

@@ -29,7 +29,7 @@ from sigma_data.experts.base import EpisodeRecorder, ExpertFailure, WaypointArm,
 from sigma_data.tasks.nut_assembly import nut_object, peg_body_id
 
 if TYPE_CHECKING:
-    from sigma_data.tasks.registry import Variation
+    from sigma_data.tasks.spec import Variation
 
 PREGRASP_HEIGHT = 0.08
 GRASP_OFFSET = 0.003  # grip site above the handle centre (fingertips reach ~9 mm below the site)

@@ -12,7 +12,7 @@ the fingers (wider ones only as a fallback), slid along the pads' axis if that h
 gripper, hand and wrist do not come down on a neighbour or the bin walls, and the wrist (joint 7) keeps room for
 the carry to bin2. The grasp height is 3.6 cm below the top (palm clearance), at least 2 cm above the bottom.
 The target is the point of the object's quadrant closest to the robot base with a margin from its walls: the
-quadrant centre of the far quadrants is out of top-down reach (robosuite_notes §3.4).
+quadrant centre of the far quadrants is out of top-down reach (docs/robosuite.md §6).
 """
 
 from __future__ import annotations
@@ -27,7 +27,7 @@ from sigma_data.experts.base import EpisodeRecorder, ExpertFailure, WaypointArm,
 from sigma_data.tasks.pick_place import object_index
 
 if TYPE_CHECKING:
-    from sigma_data.tasks.registry import Variation
+    from sigma_data.tasks.spec import Variation
 
 PREGRASP_HEIGHT = 0.10
 # The open fingers reach ~1.2 cm below the grip site and the hand sweeps +-10.5 cm along the closing axis:

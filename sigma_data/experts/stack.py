@@ -21,7 +21,7 @@ from sigma_data.experts.lift import GRASP_OFFSET, PREGRASP_HEIGHT, object_yaw
 from sigma_data.tasks.stack import cube, cube_half_size
 
 if TYPE_CHECKING:
-    from sigma_data.tasks.registry import Variation
+    from sigma_data.tasks.spec import Variation
 
 CLEARANCE = 0.08  # held cube bottom above the bottom cube's top while travelling
 PLACE_GAP = 0.008  # held cube bottom above the bottom cube's top at release

@@ -6,19 +6,24 @@ through the same writers as the scripted-expert collector:
 
 * :mod:`sigma_data.importers.hdf5` -- robosuite ``demo.hdf5`` and robomimic HDF5 files, by state replay;
 * :mod:`sigma_data.importers.raw` -- raw real-robot episodes in sigma's documented directory format;
-* :mod:`sigma_data.teleop` -- live teleoperation (uses the same sink).
+* :mod:`sigma_data.importers.teleop` -- live teleoperation (uses the same sink).
 
 Bad input in one episode (a missing field, NaN states, a missing image, ...) raises :class:`SourceError`
 naming the file, the episode and the field; the importer records it as a failure and goes on with the next
 episode. Episodes written before stay written: the writers finalize in ``finally``, and a failure inside a
 writer discards only the partial episode. The run ends with :class:`ImportSummary` (one summary line, and
-``<output.dir>/import.json`` with every failure).
+``<output.dir>/import.json`` with every failure and each dataset's episode count).
+
+A failure to *write* (disk full, read-only directory) is not the source's fault and would repeat for every later
+episode: :meth:`DatasetSink.add` raises :class:`OutputError`, the importers stop, and the report says what each
+dataset holds; a dataset left without any episode (LeRobot cannot read one) is removed.
 """
 
 from __future__ import annotations
 
 import dataclasses
 import json
+import shutil
 import time
 from collections.abc import Callable, Mapping
 from dataclasses import asdict, dataclass, field
@@ -88,6 +93,11 @@ class ImportOutputConfig:
                 raise FileExistsError(f"{root} already exists (pass --output.overwrite=true to replace it)")
 
 
+class OutputError(OSError):
+    """Writing a dataset failed (disk full, permissions): the import stops; the message says what each dataset
+    holds."""
+
+
 @dataclass
 class EpisodeFailure:
     """One source episode that could not be converted."""
@@ -104,13 +114,16 @@ class ImportSummary:
     converted: int = 0
     failed: list[EpisodeFailure] = field(default_factory=list)
     frames: dict[str, int] = field(default_factory=dict)  # dataset kind -> frames written
+    episodes: dict[str, int] = field(default_factory=dict)  # dataset kind -> episodes written
     keyframes: int = 0  # keyframes of the converted episodes
     outputs: dict[str, str] = field(default_factory=dict)  # dataset kind -> root
     wall_s: float = 0.0
 
     def line(self) -> str:
         parts = [f"import {self.source}: converted {self.converted}, failed {len(self.failed)} episodes"]
-        parts += [f"{kind} {n} frames" for kind, n in self.frames.items()]
+        for kind, n in self.frames.items():
+            eps = self.episodes.get(kind, 0)
+            parts.append(f"{kind} {n} frames ({eps} episode{'' if eps == 1 else 's'})")
         parts.append(f"{self.keyframes} keyframes")
         parts.append(f"{self.wall_s:.1f} s")
         out = ", ".join(parts)
@@ -144,6 +157,7 @@ class DatasetSink:
         self.provenance = dict(provenance)
         self.writers: dict[str, SigmaWriter] = {}
         self.layout: DatasetLayout | None = None
+        self.static_calibration: dict[str, tuple[np.ndarray, np.ndarray]] = {}
         self._start = time.perf_counter()
 
     def _open(self, layout: DatasetLayout, static_calibration: StaticCalibration | None) -> None:
@@ -167,15 +181,40 @@ class DatasetSink:
                     **common,
                 )
         self.layout = layout
+        self.static_calibration = {
+            cam: (np.asarray(K, np.float64), np.asarray(E, np.float64))
+            for cam, (K, E) in (static_calibration or {}).items()
+        }
 
     def open(self, layout: DatasetLayout, static_calibration: StaticCalibration | None = None) -> None:
         """Open the writers (first call) or check that ``layout`` matches the open datasets."""
         if self.layout is None:
             self._open(layout, static_calibration)
-        elif layout != self.layout:
+            return
+        if layout != self.layout:
             raise ValueError(
                 f"cameras/size {layout} differ from the dataset's {self.layout} (one dataset, one camera layout)"
             )
+        if static_calibration is not None:  # None: the caller checked it already (or has nothing to say)
+            self.check_static_calibration(static_calibration)
+
+    def check_static_calibration(self, static_calibration: StaticCalibration, tol: float = 1e-6) -> None:
+        """A camera the dataset stores as fixed (its K and E in the feature's ``info``, from the first episode)
+        must have that calibration in every later episode too: otherwise the stored one would be wrong for it."""
+        for cam, (K0, E0) in self.static_calibration.items():
+            if cam not in static_calibration:
+                raise ValueError(
+                    f"camera '{cam}' moves in this episode, but the dataset stores it as a fixed camera (its "
+                    "calibration from the first episode); import episodes with a moving camera into another dataset"
+                )
+            K, E = (np.asarray(m, np.float64) for m in static_calibration[cam])
+            dk, de = float(np.abs(K - K0).max()), float(np.abs(E - E0).max())
+            if dk > tol or de > tol:
+                raise ValueError(
+                    f"fixed camera '{cam}' has other calibration than in the first episode (max |dK| {dk:.3g} px, "
+                    f"max |dE| {de:.3g}); one dataset stores one calibration per fixed camera: import episodes "
+                    "with another camera set-up into another dataset"
+                )
 
     def shared_frames(self, episode: Episode) -> set[int]:
         """Frames of ``episode`` that more than one open writer asks for (worth caching once rendered)."""
@@ -196,8 +235,19 @@ class DatasetSink:
         dense dataset one episode ahead; ``import.json`` then names the episode.
         """
         self.open(layout, static_calibration)
-        for writer in self.writers.values():
-            writer.add_episode(episode, views)
+        written: list[str] = []
+        for kind, writer in self.writers.items():
+            try:
+                writer.add_episode(episode, views)
+            except OSError as exc:
+                counts = ", ".join(f"{k} {len(w.episodes)}" for k, w in self.writers.items())
+                note = f"; {', '.join(written)} already holds this episode" if written else ""
+                raise OutputError(
+                    f"writing episode {episode.name} into the {kind} dataset failed ({exc}){note}. Episodes per "
+                    f"dataset: {counts}. Free space (or fix permissions) and import again with "
+                    "--output.overwrite=true"
+                ) from exc
+            written.append(kind)
         self.summary.converted += 1
         self.summary.keyframes += len(episode.keyframes)
 
@@ -214,7 +264,11 @@ class DatasetSink:
             except BaseException as exc:
                 errors.append(exc)
             self.summary.frames[kind] = writer.num_frames
-            self.summary.outputs[kind] = str(writer.root)
+            self.summary.episodes[kind] = len(writer.episodes)
+            if writer.episodes:
+                self.summary.outputs[kind] = str(writer.root)
+            else:  # LeRobot cannot read a dataset without episodes: leave nothing that looks like one
+                shutil.rmtree(writer.root, ignore_errors=True)
         self.summary.wall_s = time.perf_counter() - self._start
         out = Path(self.output.dir)
         out.mkdir(parents=True, exist_ok=True)
@@ -226,7 +280,9 @@ class DatasetSink:
     def __enter__(self) -> DatasetSink:
         return self
 
-    def __exit__(self, *exc: object) -> None:
+    def __exit__(self, exc_type: object, exc: BaseException | None, tb: object) -> None:
+        if isinstance(exc, OutputError):
+            self.fail("output", exc)
         self.close()
 
 

@@ -1,6 +1,6 @@
 """Import robosuite ``demo.hdf5`` and robomimic HDF5 demonstrations by **state replay**.
 
-Two layouts are read (robosuite_notes §4.2-4.3), told apart by the attributes of the ``data`` group:
+Two layouts are read (docs/robosuite.md §8.1, §8.2), told apart by the attributes of the ``data`` group:
 
 * robosuite (``DataCollectionWrapper`` + ``gather_demonstrations_as_hdf5``): ``data.attrs["env_info"]`` (JSON:
   ``env_name``, ``robots``, ``controller_configs``), demos ``demo_1 .. demo_N``;
@@ -10,7 +10,7 @@ Two layouts are read (robosuite_notes §4.2-4.3), told apart by the attributes o
 Each demo has ``attrs["model_file"]`` (the MJCF of the episode), ``states`` (T, 1 + nq + nv) -- ``states[t]``
 is the flattened MuJoCo state ``[time, qpos, qvel]`` *before* ``actions[t]`` -- and ``actions`` (T, 7).
 
-States are the ground truth; actions are never re-executed (open-loop replay drifts by millimetres, §4.5).
+States are the ground truth; actions are never re-executed (open-loop replay drifts by millimetres, docs/robosuite.md §8.3).
 Per demo the scene is rebuilt from ``model_file`` (``env.edit_model_xml`` -> ``env.reset_from_xml_string``),
 then every state is set (``sim.set_state_from_flattened`` + ``sim.forward``) to read the grip-site pose, finger
 joints and arm joint velocities, and the chosen cameras are re-rendered with metric depth and calibration
@@ -37,15 +37,18 @@ from typing import Any, Literal
 import numpy as np
 
 from sigma_data.cameras import DEFAULT_CAMERAS, CameraRig, RenderConfig, check_cameras
-from sigma_data.episode import STATE_DIM, Episode, Keyframe, gripper_open_from_actions
+from sigma_data.contract import DENSE_ACTION_DIM, STATE_DIM, implausible_state
+from sigma_data.episode import Episode, Keyframe, gripper_open_from_actions
 from sigma_data.importers import (
     DatasetSink,
     ImportOutputConfig,
     ImportSummary,
+    OutputError,
     SourceError,
     finite_or_error,
     parse_cameras,
 )
+from sigma_data.importers.model_files import foreign_files
 from sigma_data.keyframes import dedup_by_pose, discover_keyframes
 from sigma_data.record import arm_joint_velocities, robot_state
 from sigma_data.writers import DatasetLayout
@@ -64,7 +67,7 @@ ENV_TASKS: dict[str, tuple[str, str]] = {
     "NutAssemblyRound": ("nut_assembly", "round_nut"),
     "Door": ("door", "open_door"),
 }
-ACTION_DIM = 7
+ACTION_DIM = DENSE_ACTION_DIM  # robosuite OSC_POSE delta + gripper
 
 
 @dataclass
@@ -85,11 +88,14 @@ class Hdf5ImportConfig:
     # The instruction of every demo; None = the sigma task's canonical instruction for the environment.
     instruction: str | None = None
     # Extra keyframe filter: drop a keyframe whose next one has the same gripper state and nearly the same
-    # pose (1 cm / 5 deg, robosuite_notes §5.3).
+    # pose (1 cm / 5 deg, docs/robosuite.md §7.2).
     dedup_keyframes: bool = False
     # Rendering: the fast exact settings (MSAA/reflections/skybox off) and the depth clip, metres.
     fast_render: bool = True
     max_depth: float = 3.0
+    # Let a demo's MJCF read files outside robosuite's assets (includes, meshes, textures elsewhere). Off: such a
+    # demo is refused, since a crafted file could render any readable file into the dataset. Only for your own.
+    trust_model_files: bool = False
     # Show a progress bar.
     progress: bool = True
 
@@ -282,7 +288,7 @@ def make_replay_env(source: Hdf5Source, render: RenderConfig) -> Any:
 
 def instruction_for(source: Hdf5Source, instruction: str | None) -> tuple[str, str, str]:
     """(task, variation, instruction) of the file's demos: the user's instruction, else the task mapping."""
-    from sigma_data.tasks import get_task, get_variation
+    from sigma_data.suite import get_task, get_variation
 
     mapped = ENV_TASKS.get(source.env_name)
     if instruction is not None:
@@ -302,10 +308,27 @@ def instruction_for(source: Hdf5Source, instruction: str | None) -> tuple[str, s
     return task.name, mapped[1], get_variation(task, mapped[1]).instruction
 
 
-def load_demo_model(env: Any, demo: DemoArrays, path: Path, cameras: Sequence[str]) -> None:
-    """Rebuild ``env``'s scene from the demo's MJCF and check the state size and cameras."""
+def load_demo_model(
+    env: Any, demo: DemoArrays, path: Path, cameras: Sequence[str], trust_model_files: bool = False
+) -> None:
+    """Rebuild ``env``'s scene from the demo's MJCF and check the state size and cameras. A model that reads files
+    outside robosuite's assets is refused unless ``trust_model_files`` (:mod:`sigma_data.importers.model_files`)."""
     try:
-        env.reset_from_xml_string(env.edit_model_xml(demo.model_file))
+        xml = env.edit_model_xml(demo.model_file)
+        foreign = [] if trust_model_files else foreign_files(xml)
+    except Exception as exc:
+        raise SourceError(path, demo.name, "attrs['model_file']", f"the model does not load: {exc}") from exc
+    if foreign:
+        raise SourceError(
+            path,
+            demo.name,
+            "attrs['model_file']",
+            f"reads files outside robosuite's assets: {', '.join(foreign[:3])}"
+            f"{f' (+{len(foreign) - 3} more)' if len(foreign) > 3 else ''}; refused "
+            "(--trust_model_files=true imports it if you trust this file)",
+        )
+    try:
+        env.reset_from_xml_string(xml)
         env.sim.reset()
     except Exception as exc:
         raise SourceError(path, demo.name, "attrs['model_file']", f"the model does not load: {exc}") from exc
@@ -331,10 +354,11 @@ def replay_episode(
     instruction: str,
     dedup: bool = False,
     provenance: dict[str, Any] | None = None,
+    path: Path | None = None,
 ) -> Episode:
     """Set every stored state (no action is executed) and build the episode with heuristic keyframes.
 
-    The env must hold the demo's model (:func:`load_demo_model`).
+    The env must hold the demo's model (:func:`load_demo_model`); ``path`` (the source file) names errors.
     """
     gripper_open = gripper_open_from_actions(demo.actions, initial_open=True)
     states = np.empty((len(demo.states), STATE_DIM), dtype=np.float32)
@@ -347,6 +371,14 @@ def replay_episode(
         if s.shape != (STATE_DIM,):
             raise ValueError(
                 f"robot state has {s.shape} values, the contract needs {STATE_DIM} (two fingers)"
+            )
+        problem = implausible_state(s)
+        if problem:
+            raise SourceError(
+                path or Path("<hdf5>"),
+                demo.name,
+                "states",
+                f"row {t} replays to {problem}: not a robot state",
             )
         states[t] = s
         joint_vel.append(arm_joint_velocities(env))
@@ -387,13 +419,14 @@ def _convert_demo(
     from sigma_data.replay_render import RenderedFrames
 
     render = cfg.render_config()
-    load_demo_model(env, demo, source.path, render.cameras)
+    load_demo_model(env, demo, source.path, render.cameras, cfg.trust_model_files)
     ep = replay_episode(
         env,
         demo,
         *naming,
         dedup=cfg.dedup_keyframes,
         provenance={"importer": "hdf5", "file": str(source.path), "demo": demo.name},
+        path=source.path,
     )
     rig = CameraRig(env, render)  # its renders make this scene's context current
     sink.open(layout, rig.static_calibration())
@@ -436,6 +469,8 @@ def import_hdf5(cfg: Hdf5ImportConfig) -> ImportSummary:
                     try:
                         demo = read_demo(f, source, name)
                         _convert_demo(env, demo, source, (task, variation, instruction), cfg, sink, layout)
+                    except OutputError:
+                        raise  # the output, not this episode: every later one would fail too
                     except Exception as exc:
                         error = (
                             exc if isinstance(exc, SourceError) else SourceError(path, name, None, repr(exc))

@@ -66,6 +66,7 @@ from sigma_data.importers import (
     DatasetSink,
     ImportOutputConfig,
     ImportSummary,
+    OutputError,
     SourceError,
     finite_or_error,
     parse_cameras,
@@ -438,6 +439,8 @@ def import_raw(cfg: RawImportConfig) -> ImportSummary:
                     )
                 layout = DatasetLayout(tuple(cameras), h, w)
                 sink.add(episode, stored_views(episode), layout, static_calibration(episode, specs))
+            except OutputError:
+                raise  # the output, not this episode: every later one would fail too
             except Exception as exc:
                 sink.fail(
                     str(ep_dir),

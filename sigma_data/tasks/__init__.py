@@ -1,23 +1,10 @@
-"""The robosuite task suite: registry (tasks, variations, workspace bounds) and per-task success checks."""
+"""What sigma knows about each robosuite task's scene: object names, goal sites, success checks.
 
-from sigma_data.tasks.registry import (
-    TASKS,
-    TaskSpec,
-    Variation,
-    get_task,
-    get_variation,
-    make_env,
-    reset_env,
-    scene_bounds,
-)
+One module per task (``lift``, ``stack``, ``pick_place``, ``nut_assembly``, ``door``) and the types tasks are
+described by (:mod:`sigma_data.tasks.spec`). The registry that ties each task to its variations, expert and
+workspace box is :mod:`sigma_data.suite`; nothing here imports it.
+"""
 
-__all__ = [
-    "TASKS",
-    "TaskSpec",
-    "Variation",
-    "get_task",
-    "get_variation",
-    "make_env",
-    "reset_env",
-    "scene_bounds",
-]
+from sigma_data.tasks.spec import Bounds, SuccessFn, TaskSpec, Variation
+
+__all__ = ["Bounds", "SuccessFn", "TaskSpec", "Variation"]

@@ -5,7 +5,7 @@ from __future__ import annotations
 from typing import TYPE_CHECKING, Any
 
 if TYPE_CHECKING:
-    from sigma_data.tasks.registry import Variation
+    from sigma_data.tasks.spec import Variation
 
 OPEN_ANGLE = 0.3  # rad; robosuite's success threshold on the hinge joint
 BOUNDS = (-0.35, -0.55, 0.75, 0.35, 0.15, 1.45)

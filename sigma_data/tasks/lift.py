@@ -5,7 +5,7 @@ from __future__ import annotations
 from typing import TYPE_CHECKING, Any
 
 if TYPE_CHECKING:
-    from sigma_data.tasks.registry import Variation
+    from sigma_data.tasks.spec import Variation
 
 LIFT_HEIGHT = 0.04  # the cube centre must rise this far above the table top (robosuite's own threshold)
 

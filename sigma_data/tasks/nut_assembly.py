@@ -11,7 +11,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 if TYPE_CHECKING:
-    from sigma_data.tasks.registry import Variation
+    from sigma_data.tasks.spec import Variation
 
 NUTS = ("square", "round")  # robosuite's nut_to_id order; peg1 is square, peg2 round
 MIN_GRIPPER_DISTANCE = float(np.arctanh(0.4) / 10.0)  # robosuite's r_reach < 0.6, ~0.042 m

@@ -11,7 +11,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 if TYPE_CHECKING:
-    from sigma_data.tasks.registry import Variation
+    from sigma_data.tasks.spec import Variation
 
 OBJECTS = ("milk", "bread", "cereal", "can")  # robosuite's object_to_id order
 # robosuite counts an object as placed only when the grip site is away from it: 1 - tanh(10 d) < 0.6.

@@ -11,7 +11,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 if TYPE_CHECKING:
-    from sigma_data.tasks.registry import Variation
+    from sigma_data.tasks.spec import Variation
 
 CUBES = ("cubeA", "cubeB")
 LIFTED = 0.04  # the top cube's centre must be this far above the table top (robosuite's threshold)

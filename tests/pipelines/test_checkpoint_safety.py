@@ -13,7 +13,8 @@ from lerobot.datasets.lerobot_dataset import LeRobotDataset
 from lerobot.policies.factory import make_policy, make_pre_post_processors
 from safetensors.torch import load_file, save_file
 
-from pipelines.evaluate import CheckpointError, check_checkpoint, load_policy, main
+from pipelines.checkpoints import CheckpointError, check_checkpoint, load_policy
+from pipelines.evaluate import main
 from sigma_policy.configuration_sigma import SigmaConfig
 from tests.sigma_policy.tiny_dataset import BOUNDS, write_tiny_keyframe_dataset
 

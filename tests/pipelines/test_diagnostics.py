@@ -110,8 +110,8 @@ def test_a_missing_dataset_is_named(tmp_path):
 
 def test_checkpoint_prediction_matches_select_action(tmp_path):
     """What sigma-diagnose scores is what the policy acts on in closed loop (same pre-processor, same path)."""
+    from pipelines.checkpoints import load_policy
     from pipelines.diagnostics import KeyframeSet, predict_rows
-    from pipelines.evaluate import load_policy
 
     root = write_tiny_keyframe_dataset(tmp_path / "tiny", episodes=1, size=32)
     ckpt = tmp_path / "ckpt"
@@ -131,8 +131,8 @@ def test_checkpoint_prediction_matches_select_action(tmp_path):
 
 def test_instruction_swap_on_one_scene_under_two_instructions(tmp_path):
     """The "language" tiny dataset is one scene under two instructions; a sidecar gives both the same seed."""
+    from pipelines.checkpoints import load_policy
     from pipelines.diagnostics import KeyframeSet, instruction_swap, swap_scenes
-    from pipelines.evaluate import load_policy
 
     root = write_tiny_keyframe_dataset(tmp_path / "lang", episodes=2, size=32, scenes="language")
     ds = open_dataset(root)

@@ -94,7 +94,7 @@ def test_the_other_stacking_order_is_recognised_in_real_robosuite():
     from pipelines.evaluate import other_variation_done
     from sigma_data.control import EnvDriver
     from sigma_data.sim_env import SigmaRobosuiteEnv
-    from sigma_data.tasks import get_task, get_variation
+    from sigma_data.suite import get_task, get_variation
 
     env = SigmaRobosuiteEnv("stack:green_on_red", cameras=("agentview",), image_size=32)
     try:

@@ -11,10 +11,10 @@ import pytest
 from pipelines.viz.cli import main
 from pipelines.viz.episode import (
     backproject_depth,
-    detect_dataset_kind,
     load_episode_dataset,
     subsample_evenly,
 )
+from sigma_data.contract import dataset_kind
 from tests.pipelines import viz_fixtures as fx
 
 POINT_BUDGET = 300  # below the 2 x 24 x 32 valid pixels per frame, so subsampling is exercised
@@ -169,11 +169,11 @@ def test_subsample_evenly():
 def test_kind_detection_errors(tmp_path):
     feats = {"action": {"dtype": "float32", "shape": (5,), "names": None}}
     with pytest.raises(ValueError, match="'action' has 5 dims"):
-        detect_dataset_kind(tmp_path, feats)
+        dataset_kind(tmp_path, feats)
     (tmp_path / "meta").mkdir()
     (tmp_path / "meta" / "sigma.json").write_text(json.dumps({"kind": "sparse"}))
     with pytest.raises(ValueError, match=r"sigma\.json: field 'kind'"):
-        detect_dataset_kind(tmp_path, feats)
+        dataset_kind(tmp_path, feats)
 
 
 def test_bad_episode_index_names_the_dataset(dense):

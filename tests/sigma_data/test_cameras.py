@@ -5,7 +5,7 @@ import pytest
 
 from sigma_data.cameras import DEFAULT_CAMERAS, CameraRig, RenderConfig, backproject, fused_cloud
 from sigma_data.record import EpisodeRecorder
-from sigma_data.tasks import get_task, make_env, reset_env
+from sigma_data.suite import get_task, make_env, reset_env
 
 SIZE = 96
 

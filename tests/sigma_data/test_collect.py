@@ -1,7 +1,10 @@
 """End-to-end collection: 2 Lift episodes with the real expert, small images, both datasets read back by stock
-LeRobotDataset; determinism and resume after an interrupted shard; clear errors on bad names."""
+LeRobotDataset; determinism and resume after an interrupted shard; a damaged finished shard is redone, not
+reused; clear errors on bad names."""
 
 import importlib.util
+import json
+import logging
 import os
 import shutil
 import subprocess
@@ -12,12 +15,12 @@ import numpy as np
 import pytest
 from lerobot.datasets.lerobot_dataset import LeRobotDataset
 
-from sigma_data import collect as collect_module
 from sigma_data.cli import main as cli_main
-from sigma_data.collect import MARKER, CollectConfig, collect
-from sigma_data.tasks import get_task
+from sigma_data.collect import MARKER, CollectConfig, check_shard, collect, merge_shards
+from sigma_data.collect import envs as collect_envs
+from sigma_data.contract import read_sidecar
+from sigma_data.suite import get_task
 from sigma_data.validate import ValidateConfig, validate_dataset
-from sigma_data.writers import read_sidecar
 
 
 def tiny(out) -> CollectConfig:
@@ -103,6 +106,119 @@ def test_rerun_skips_finished_shards_and_resumes_an_interrupted_one(first_run, t
         np.testing.assert_array_equal(ka[last][key].numpy(), kb[last][key].numpy())
 
 
+def _copy_run(out, dest):
+    """A rerun's starting point: the shards and the record of a finished run (its merged datasets left out)."""
+    shutil.copytree(out / "shards", dest / "shards")
+    shutil.copy(out / "collect.json", dest / "collect.json")
+    return dest
+
+
+def _truncate(path, keep: float) -> None:
+    with path.open("r+b") as f:
+        f.truncate(int(path.stat().st_size * keep))
+
+
+def test_a_shard_with_a_truncated_video_is_redone_not_reused(first_run, tmp_path, caplog):
+    """A finished shard whose video was cut short (metadata intact) is redone, the run says which and why, and
+    every frame of the merged dense dataset decodes."""
+    out, summary = first_run
+    damaged = _copy_run(out, tmp_path / "damaged")
+    first = damaged / "shards" / summary.shards[0].name
+    video = sorted((first / "dense" / "videos").rglob("*.mp4"))[0]
+    _truncate(video, keep=0.5)
+    why = f"{video.relative_to(first).as_posix()} has {video.stat().st_size} bytes, "
+    with caplog.at_level(logging.WARNING, logger="sigma_data.collect"):
+        again = collect(tiny(damaged))
+    assert [s.skipped for s in again.shards] == [False, True]
+    assert again.shards[0].redone.startswith(why) and "when the shard finished" in again.shards[0].redone
+    assert f"redoing shard {summary.shards[0].name}: {again.shards[0].redone}" in caplog.text
+    assert not again.shards[1].redone and "2 shards (1 reused, 1 redone)" in again.line()
+    assert check_shard(first, tiny(damaged))[0] is not None  # the redone shard verifies
+    dense = LeRobotDataset("local/d", root=damaged / "dense", video_backend="pyav")
+    assert len(dense) == summary.frames("dense")
+    for i in range(len(dense)):  # every frame of every camera stream decodes
+        assert dense[i]["observation.images.agentview"].shape == (3, 32, 32)
+
+
+def test_a_truncated_parquet_and_a_marker_without_files_are_redone(first_run, tmp_path, caplog):
+    """A shard whose data parquet was cut short, and one whose marker predates the file list (unverifiable), are
+    both redone; the rerun succeeds with the same data."""
+    out, summary = first_run
+    damaged = _copy_run(out, tmp_path / "damaged")
+    first, second = (damaged / "shards" / s.name for s in summary.shards)
+    _truncate(first / "keyframe" / "data" / "chunk-000" / "file-000.parquet", keep=0.9)
+    old = json.loads((second / MARKER).read_text())
+    del old["files"], old["redone"]  # as markers were written before they listed files
+    (second / MARKER).write_text(json.dumps(old))
+    with caplog.at_level(logging.WARNING, logger="sigma_data.collect"):
+        again = collect(tiny(damaged))
+    assert [s.skipped for s in again.shards] == [False, False]
+    assert again.shards[0].redone.startswith("keyframe/data/chunk-000/file-000.parquet has ")
+    assert "lists no files" in again.shards[1].redone
+    for spec, shard in zip(summary.shards, again.shards, strict=True):
+        assert f"redoing shard {spec.name}: {shard.redone}" in caplog.text
+    names = ["observation.state", "action", "sigma.source_frame"]
+    _, a = columns(out / "keyframe", names)
+    _, b = columns(damaged / "keyframe", names)
+    for name in names:
+        np.testing.assert_array_equal(a[name], b[name], err_msg=name)
+
+
+def test_check_shard_says_what_is_wrong(first_run, tmp_path):
+    """Each way a finished shard can differ from what its marker recorded is found, before LeRobot reads it."""
+    out, summary = first_run
+    cfg = tiny(tmp_path)
+    source = out / "shards" / summary.shards[0].name
+
+    def shard(edit=None, marker=None):
+        path = tmp_path / f"s{len(list(tmp_path.iterdir()))}"
+        shutil.copytree(source, path)
+        if edit:
+            edit(path)
+        if marker:
+            stored = json.loads((path / MARKER).read_text())
+            marker(stored)
+            (path / MARKER).write_text(json.dumps(stored))
+        result, why = check_shard(path, cfg)
+        assert (result is None) == bool(why)
+        return why
+
+    def flip_a_byte(path):  # same size, same footer: only the hash sees it
+        data = path / "keyframe" / "data" / "chunk-000" / "file-000.parquet"
+        raw = bytearray(data.read_bytes())
+        raw[len(raw) // 2] ^= 0xFF
+        data.write_bytes(bytes(raw))
+
+    def rows(stored):
+        next(e for e in stored["files"]["keyframe"] if "rows" in e)["rows"] += 1
+
+    assert shard() == ""
+    assert (
+        shard(flip_a_byte)
+        == "keyframe/data/chunk-000/file-000.parquet differs from the file the shard wrote (SHA-256)"
+    )
+    assert shard(lambda p: (p / "dense" / "meta" / "info.json").unlink()) == "dense/meta/info.json is missing"
+    assert " rows, " in shard(marker=rows) and "when the shard finished" in shard(marker=rows)
+    assert "the shard wrote 1 frames" in shard(marker=lambda m: m["frames"].update(keyframe=1))
+    assert "lists no files" in shard(marker=lambda m: m.pop("files"))
+    assert "other options" in shard(marker=lambda m: m.update(fingerprint="0"))
+    assert "interrupted" in shard(lambda p: (p / MARKER).unlink())
+    assert check_shard(tmp_path / "absent", cfg) == (None, "")
+
+
+def test_a_merge_error_names_the_damaged_shard(first_run, tmp_path):
+    out, summary = first_run
+    copy = _copy_run(out, tmp_path / "copy")
+    bad = copy / "shards" / summary.shards[1].name
+    _truncate(bad / "keyframe" / "data" / "chunk-000" / "file-000.parquet", keep=0.9)
+    roots = [copy / "shards" / s.name / "keyframe" for s in summary.shards]
+    with pytest.raises(RuntimeError, match="damaged shard") as err:
+        merge_shards("keyframe", roots, tmp_path / "merged", "local/merged")
+    assert f"{bad} (keyframe/data/chunk-000/file-000.parquet has " in str(err.value)
+    assert str(copy / "shards" / summary.shards[0].name) + " (" not in str(err.value)
+    assert not (tmp_path / "merged").exists()
+
+
 def test_existing_data_is_never_replaced_without_overwrite(first_run, tmp_path, capsys):
     """A directory of other files, or a finished collection made with other options, is an error that touches
     nothing; ``--overwrite=true`` replaces it; a merge swaps the finished dataset in (no partial one at the path)."""
@@ -174,7 +290,7 @@ def test_single_shard_is_copied_and_reads_back(tmp_path):
     assert report.num_errors == 0, report.table()
     side = read_sidecar(tmp_path / "keyframe")
     assert side["num_episodes"] == 1 and side["episodes"][0]["shard"] == summary.shards[0].name
-    assert not collect_module._ENVS
+    assert not collect_envs._ENVS
 
 
 def test_bad_names_give_clear_errors(tmp_path):
@@ -229,14 +345,14 @@ def test_merge_prints_no_per_file_bars(first_run, tmp_path, capfd):
     out, summary = first_run
     enable_progress_bar()  # as LeRobot leaves them after any metadata read
     roots = [out / "shards" / s.name / "keyframe" for s in summary.shards]
-    collect_module.merge_shards("keyframe", roots, tmp_path / "merged", "local/merged")
+    merge_shards("keyframe", roots, tmp_path / "merged", "local/merged")
     err = capfd.readouterr().err
     assert "Copy data and videos" in err  # LeRobot's one bar for the merge stays
     assert "Generating train split" not in err and "Map" not in err, err[-2000:]
 
 
 def test_recording_ahead_keeps_order_raises_and_stops_with_its_consumer():
-    from sigma_data.collect import _ahead
+    from sigma_data.collect.shard import _ahead
 
     assert list(_ahead(iter(range(5)))) == [0, 1, 2, 3, 4]
 

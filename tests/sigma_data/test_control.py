@@ -22,7 +22,7 @@ from sigma_data.control import (
     site_yaw,
     top_down_quat,
 )
-from sigma_data.tasks import get_task, make_env, reset_env
+from sigma_data.suite import get_task, make_env, reset_env
 
 
 @pytest.fixture(scope="module")

@@ -9,7 +9,7 @@ import pytest
 
 from sigma_data.control import EnvDriver, gripper_width
 from sigma_data.experts.base import ExpertFailure
-from sigma_data.tasks import get_task, get_variation, make_env, reset_env
+from sigma_data.suite import get_task, get_variation, make_env, reset_env
 
 
 @dataclass

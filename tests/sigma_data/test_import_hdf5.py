@@ -3,6 +3,7 @@ robomimic-layout file import by state replay into datasets that pass validation 
 bad files and bad demos give errors naming file, demo and field, and the good demos still convert."""
 
 import json
+import re
 from pathlib import Path
 
 import h5py
@@ -19,7 +20,8 @@ from sigma_data.cli import main as cli_main
 from sigma_data.control import EnvDriver
 from sigma_data.importers import REPORT, ImportOutputConfig, SourceError
 from sigma_data.importers.hdf5 import Hdf5ImportConfig, import_hdf5
-from sigma_data.tasks import get_task, make_env, reset_env
+from sigma_data.importers.model_files import foreign_files
+from sigma_data.suite import get_task, make_env, reset_env
 from sigma_data.validate import ValidateConfig, validate_dataset
 
 CAMERAS = "agentview,robot0_eye_in_hand"
@@ -71,7 +73,7 @@ def robosuite_hdf5(tmp_path_factory):
 
 
 def write_robomimic(path: Path, demos: list[dict], env_name: str = "Lift", masks: dict | None = None) -> Path:
-    """A robomimic-layout file (robosuite_notes §4.3): env_args, demo_0.., num_samples, rewards/dones, mask/."""
+    """A robomimic-layout file (docs/robosuite.md §8.2): env_args, demo_0.., num_samples, rewards/dones, mask/."""
     controller = load_composite_controller_config(controller="BASIC", robot="Panda")
     env_args = {
         "env_name": env_name,
@@ -187,11 +189,13 @@ def test_bad_demos_fail_alone_and_earlier_output_survives(robosuite_hdf5, tmp_pa
     nan_states["states"][5, 3] = np.nan
     wrong_width = {**good, "states": good["states"][:, :-2]}
     bad_model = {**good, "model_file": "<mujoco><worldbody><body"}
-    demos = [good, bad_model, no_states, nan_states, wrong_width, good, good]
+    scrambled = {**good, "states": good["states"].copy()}
+    scrambled["states"][10, 1 + 7] = 6.6e31  # a finger joint (qpos[7]): finite garbage
+    demos = [good, bad_model, no_states, nan_states, wrong_width, scrambled, good, good]
     rm = write_robomimic(tmp_path / "mixed.hdf5", demos)
     out = tmp_path / "out"
-    summary = import_hdf5(hdf5_config(rm, out, max_episodes=6))  # the 7th demo is left out
-    assert summary.converted == 2 and len(summary.failed) == 4
+    summary = import_hdf5(hdf5_config(rm, out, max_episodes=7))  # the 8th demo is left out
+    assert summary.converted == 2 and len(summary.failed) == 5
     errors = {f.episode.split(": ")[-1]: f.error for f in summary.failed}
     assert "mixed.hdf5: demo_1: attrs['model_file']: the model does not load" in errors["demo_1"]
     assert errors["demo_2"].endswith("mixed.hdf5: demo_2: states: missing dataset")
@@ -200,9 +204,10 @@ def test_bad_demos_fail_alone_and_earlier_output_survives(robosuite_hdf5, tmp_pa
         "demo_4: states: rows have 30 values but the model's state [time, qpos, qvel] has 32"
         in errors["demo_4"]
     )
-    assert "failed 4" in summary.line()
+    assert "mixed.hdf5: demo_5: states: row 10 replays to finger joints" in errors["demo_5"]
+    assert "failed 5" in summary.line()
     report = json.loads((out / REPORT).read_text())
-    assert report["converted"] == 2 and len(report["failed"]) == 4
+    assert report["converted"] == 2 and len(report["failed"]) == 5
     assert assert_valid(out / "keyframe").meta.total_episodes == 2
     # Importing again into the same place is refused before anything is touched.
     with pytest.raises(FileExistsError):
@@ -232,3 +237,41 @@ def test_bad_files_are_named(robosuite_hdf5, tmp_path):
         import_hdf5(hdf5_config(wipe, tmp_path / "o4"))
     for out in ("o1", "o2", "o3", "o4"):
         assert not (tmp_path / out / "dense").exists()
+
+
+def test_model_files_that_read_outside_robosuite_are_refused(robosuite_hdf5, tmp_path):
+    """A demo MJCF that points MuJoCo at other local files (an include, an absolute mesh path, a path climbing out
+    of robosuite's package) is refused with the file, demo and field named; trusted files skip the check."""
+    path, _ = robosuite_hdf5
+    good = robosuite_demos(path)[0]
+    xml = good["model_file"]
+    xml = xml.decode() if isinstance(xml, bytes) else str(xml)
+    assert foreign_files(xml) == [], "robosuite's own demo reads only robosuite's assets"
+    secret = tmp_path / "secret.xml"
+    secret.write_text("<mujoco/>")
+    head, rest = xml.split(">", 1)
+    include = f'{head}><include file="{secret}"/>{rest}'
+    mesh_file = re.search(r'<mesh [^>]*file="([^"]+)"', xml).group(1)
+    escape = xml.replace(mesh_file, "/anywhere/robosuite/../../../../etc/hostname", 1)
+    absolute = xml.replace(mesh_file, str(secret), 1)
+    assert foreign_files(include) == [f"<include file='{secret}'>"]
+    assert len(foreign_files(absolute)) == 1
+    elsewhere = "<mujoco><compiler meshdir='/etc'/><asset><mesh name='m' file='hostname'/></asset></mujoco>"
+    assert foreign_files(elsewhere) == ["<mesh file='hostname'>"]
+    with pytest.raises(ValueError, match="not valid XML"):
+        foreign_files("<mujoco><body")
+
+    short = {**good, "states": good["states"][:20], "actions": good["actions"][:20]}
+    demos = [short] + [{**short, "model_file": m} for m in (include, escape, absolute)]
+    rm = write_robomimic(tmp_path / "crafted.hdf5", demos)
+    summary = import_hdf5(hdf5_config(rm, tmp_path / "out"))
+    assert summary.converted == 1 and len(summary.failed) == 3
+    for failure in summary.failed:
+        assert "crafted.hdf5" in failure.error and "attrs['model_file']" in failure.error
+        assert (
+            "reads files outside robosuite's assets" in failure.error
+            and "--trust_model_files" in failure.error
+        )
+    trusted = import_hdf5(hdf5_config(rm, tmp_path / "trusted", trust_model_files=True, max_episodes=2))
+    assert trusted.converted + len(trusted.failed) == 2
+    assert not any("outside robosuite" in f.error for f in trusted.failed)

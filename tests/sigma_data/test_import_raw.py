@@ -171,22 +171,29 @@ def test_raw_bad_episodes_fail_alone(tmp_path):
     frame3["eef_pos"][0] = float("nan")
     lines[3] = json.dumps(frame3)  # Python's json writes NaN
     (nan / "frames.jsonl").write_text("\n".join(lines) + "\n")
+    moved = write_episode(
+        src, "e_fixed_camera_moved"
+    )  # 'top' is fixed, 5 cm away from where it was in a_good
+    top = json.loads((moved / "cameras" / "top.json").read_text())
+    top["extrinsics"] = pose(DOWN, np.asarray(TOP_POS) + [0.05, 0, 0])
+    (moved / "cameras" / "top.json").write_text(json.dumps(top))
 
     out = tmp_path / "out"
     summary = import_raw(RawImportConfig(path=src, output=out_config(out), progress=False))
-    assert summary.converted == 1 and len(summary.failed) == 3
+    assert summary.converted == 1 and len(summary.failed) == 4
     errors = {Path(f.episode).name: f.error for f in summary.failed}
     assert "b_missing_image" in errors["b_missing_image"] and "000004.png" in errors["b_missing_image"]
     assert "rgb" in errors["b_missing_image"]
     assert "000002.png" in errors["c_wrong_size"] and "25x32" in errors["c_wrong_size"]
     assert "frames.jsonl" in errors["d_nan_pose"] and "eef_pos" in errors["d_nan_pose"]
     assert "row 3" in errors["d_nan_pose"]
-    assert "failed 3" in summary.line()
+    assert "fixed camera 'top' has other calibration" in errors["e_fixed_camera_moved"]
+    assert "failed 4" in summary.line()
     # The good episode is written and readable; the report lists the failures.
     ds = LeRobotDataset("local/raw", root=out / "keyframe", depth_output_unit="m", video_backend="pyav")
     assert ds.meta.total_episodes == 1
     report = json.loads((out / REPORT).read_text())
-    assert len(report["failed"]) == 3 and report["converted"] == 1
+    assert len(report["failed"]) == 4 and report["converted"] == 1
     # An existing dataset is never overwritten by default: the second run stops before touching it.
     with pytest.raises(FileExistsError, match="already exists"):
         import_raw(RawImportConfig(path=src, output=out_config(out), progress=False))
@@ -226,3 +233,34 @@ def test_cli_import_raw(tmp_path, capsys):
     assert LeRobotDataset("local/raw", root=out / "dense", video_backend="pyav").meta.total_episodes == 1
     assert cli_main(["import", "video", "--path=x"]) == 1
     assert "one of hdf5, raw, teleop" in capsys.readouterr().err
+
+
+def test_a_failed_write_stops_the_import_and_says_what_each_dataset_holds(tmp_path, monkeypatch):
+    """Disk full while writing the keyframe dataset: the import stops (every later episode would fail too), the
+    error and import.json give each dataset's episode count, and a dataset left without episodes is removed
+    (LeRobot cannot read one) instead of left looking like a dataset."""
+    import errno
+
+    from sigma_data.importers import OutputError
+    from sigma_data.writers import KeyframeWriter
+
+    src = tmp_path / "src"
+    for name in ("a", "b", "c"):
+        write_episode(src, name)
+
+    def disk_full(self, episode, views):
+        raise OSError(errno.ENOSPC, "No space left on device")
+
+    monkeypatch.setattr(KeyframeWriter, "add_episode", disk_full)
+    out = tmp_path / "out"
+    with pytest.raises(
+        OutputError, match=r"keyframe dataset failed .*No space left.*dense already holds this"
+    ):
+        import_raw(RawImportConfig(path=src, output=out_config(out), progress=False))
+    report = json.loads((out / REPORT).read_text())
+    assert report["episodes"] == {"dense": 1, "keyframe": 0} and report["converted"] == 0
+    assert report["failed"][-1]["episode"] == "output"
+    assert not (out / "keyframe").exists()
+    assert LeRobotDataset("local/raw", root=out / "dense", video_backend="pyav").meta.total_episodes == 1
+    code = cli_main(["import", "raw", f"--path={src}", f"--output.dir={tmp_path / 'out2'}"])
+    assert code == 1

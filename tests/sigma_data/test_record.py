@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 
 from sigma_data.record import EpisodeRecorder, grip_site_pose, robot_state
-from sigma_data.tasks import get_task, make_env, reset_env
+from sigma_data.suite import get_task, make_env, reset_env
 
 
 @pytest.fixture(scope="module")

@@ -8,7 +8,7 @@ import pytest
 
 from sigma_data.control import EnvDriver
 from sigma_data.sim_env import GYM_ID, SigmaRobosuiteEnv, parse_task
-from sigma_data.tasks.registry import get_task, get_variation, make_env, reset_env
+from sigma_data.suite import get_task, get_variation, make_env, reset_env
 
 CAMS = ("agentview", "robot0_eye_in_hand")
 

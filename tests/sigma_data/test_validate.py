@@ -98,3 +98,72 @@ def test_instruction_missing_and_splits(tmp_path):
 def test_not_a_dataset_is_a_clear_error(tmp_path):
     with pytest.raises(FileNotFoundError, match="not a LeRobot dataset"):
         validate_dataset(ValidateConfig(root=tmp_path))
+
+
+def _edit_parquet(root, edit) -> None:
+    """Rewrite the dataset's (single) data parquet file with ``edit(table) -> table``."""
+    import pyarrow.parquet as pq
+
+    (path,) = sorted((root / "data").rglob("*.parquet"))
+    pq.write_table(edit(pq.read_table(path)), path)
+
+
+def _set(table, column: str, row: int, value):
+    import pyarrow as pa
+
+    values = table.column(column).to_pylist()
+    values[row] = value
+    index = table.schema.get_field_index(column)
+    return table.set_column(
+        index, table.schema.field(index), pa.array(values, type=table.schema.field(index).type)
+    )
+
+
+def test_a_lost_row_is_named(tmp_path):
+    """One dropped parquet row: stock LeRobot would index past the episode's end; validate names the episode."""
+    root = write_dataset(tmp_path / "lost", "dense")
+    _edit_parquet(root, lambda t: t.take([i for i in range(t.num_rows) if i != 5]))
+    hit = next(c for c in validate_dataset(ValidateConfig(root=root)).checks if c.name == "rows.count")
+    assert hit.status == "error" and hit.episode == 0 and "rows in data/" in hit.detail
+
+
+def test_implausible_values_and_honest_numbers(tmp_path):
+    """Garbage that is finite still fails (positions 1e31 m away); messages give the real numbers and the frame
+    within the episode, not the dataset row."""
+    root = write_dataset(tmp_path / "garbage", "keyframe")
+    report = validate_dataset(ValidateConfig(root=root))
+    second = report.num_frames // 2 + 1  # row of frame 1 of episode 1 (two equal episodes)
+
+    def edit(t):
+        state = t.column("observation.state").to_pylist()
+        state[second][0] = 6.6e31
+        t = _set(t, "observation.state", second, state[second])
+        action = t.column("action").to_pylist()
+        action[second][3:7] = [0.0, 0.0, 0.0, 0.0]
+        t = _set(t, "action", second, action[second])
+        extr = t.column("observation.camera.top.extrinsics").to_pylist()
+        extr[second][0][3] = float("nan")
+        return _set(t, "observation.camera.top.extrinsics", second, extr[second])
+
+    _edit_parquet(root, edit)
+    checks = {c.name: c for c in validate_dataset(ValidateConfig(root=root)).checks if c.status == "error"}
+    plausible = checks["values.plausible"]
+    assert (plausible.episode, plausible.frame) == (1, 1) and "beyond 5.0 m" in plausible.detail
+    assert "norm 0.0000" in checks["goals.quaternion"].detail and checks["goals.quaternion"].frame == 1
+    assert checks["extrinsics"].detail == "NaN or inf in the camera-to-world transform"
+    assert (checks["extrinsics"].episode, checks["extrinsics"].frame) == (1, 1)
+
+
+def test_an_undecodable_image_is_named(tmp_path):
+    root = write_dataset(tmp_path / "png", "keyframe")  # images stored in the parquet rows (PNG bytes)
+
+    def edit(t):
+        img = t.column("observation.images.top").to_pylist()
+        img[0]["bytes"] = b"\x89PNG\r\n\x1a\n" + b"\x00" * 64
+        return _set(t, "observation.images.top", 0, img[0])
+
+    _edit_parquet(root, edit)
+    report = validate_dataset(ValidateConfig(root=root))
+    hit = next(c for c in report.checks if c.name == "images.decode")
+    assert hit.status == "error" and (hit.episode, hit.frame, hit.field) == (0, 0, "observation.images.top")
+    assert "does not decode" in hit.detail

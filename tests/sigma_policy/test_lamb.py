@@ -13,7 +13,7 @@ from sigma_policy.lamb import Lamb, LambConfig
 
 
 def reference_lamb(w, grads, lr, b1, b2, eps, wd):
-    """Scalar-loop restatement of model_spec §8 in float64 (no bias correction, trust clamp 10)."""
+    """Scalar-loop restatement of docs/method.md §10 in float64 (no bias correction, trust clamp 10)."""
     w = [float(x) for x in w]
     m = [0.0] * len(w)
     v = [0.0] * len(w)

@@ -10,7 +10,7 @@ import pytest
 import torch
 
 from pipelines.diagnostics import KeyframeSet, diagnose_checkpoint, goal_rows, open_dataset
-from sigma_data.tasks import scene_bounds
+from sigma_data.suite import scene_bounds
 from tests.sigma_policy.test_modeling import build, sample_indices, train, training_batch
 from tests.sigma_policy.tiny_dataset import write_tiny_keyframe_dataset
 

@@ -11,7 +11,7 @@ from tests.sigma_policy.tiny_dataset import write_tiny_keyframe_dataset
 
 
 def test_patched_query_matches_lerobot_original(tmp_path):
-    assert lerobot_patches.install()  # installed by `import sigma_policy`; idempotent
+    assert lerobot_patches.install()  # idempotent
     assert DatasetReader._query_hf_dataset is lerobot_patches._grouped_query_hf_dataset
     original = lerobot_patches._grouped_query_hf_dataset.original
 
@@ -102,3 +102,19 @@ def test_torchcodec_warning_is_one_line(caplog):
     messages = [r.getMessage() for r in caplog.records]
     assert messages[0].startswith("torchcodec cannot load here") and "\n" not in messages[0]
     assert messages[1] == "an unrelated warning\nwith two lines"
+
+
+def test_importing_sigma_policy_changes_nothing_in_lerobot():
+    """``import sigma_policy`` only registers names; the plugin entry point LeRobot loads installs the fix."""
+    import subprocess
+    import sys
+
+    code = (
+        "from lerobot.datasets.dataset_reader import DatasetReader as R; original = R._query_hf_dataset\n"
+        "import sigma_policy\n"
+        "assert R._query_hf_dataset is original, 'import sigma_policy patched LeRobot'\n"
+        "import lerobot_policy_sigma\n"
+        "assert R._query_hf_dataset is not original, 'the plugin entry point did not install the fix'\n"
+    )
+    done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True)
+    assert done.returncode == 0, done.stderr[-2000:]

@@ -89,7 +89,7 @@ def lift_frame() -> dict:
     )  # fmt: skip
     env.reset()
     sim = env.sim
-    sim.model._model.vis.quality.offsamples = 0  # MSAA off: exact depth at silhouettes (robosuite_notes §1.2)
+    sim.model._model.vis.quality.offsamples = 0  # MSAA off: exact depth at silhouettes (docs/robosuite.md §2)
     ctx = sim._render_context_offscreen
     ctx.con.free()
     ctx._set_mujoco_context_and_buffers()

@@ -11,7 +11,7 @@ from sigma_policy.renderer import VIEW_NAMES, VirtualViewRenderer, project_point
 
 
 def _reference_uvz(p: torch.Tensor, view: str, S: int) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
-    """The model_spec §2.1 camera table, written out view by view (float32, same arithmetic as documented)."""
+    """The docs/method.md §4.1 camera table, written out view by view (float32, same arithmetic as documented)."""
     x, y, z = p.unbind(-1)
     half = S / 2
     table = {
@@ -165,7 +165,7 @@ def test_project_lands_in_rasterised_pixel() -> None:
 
 
 def test_view_geometry_matches_spec_table() -> None:
-    """Hard-coded camera table of model_spec §2.1 at the cube's corners and centre."""
+    """Hard-coded camera table of docs/method.md §4.1 at the cube's corners and centre."""
     renderer = VirtualViewRenderer(img_size=220)
     p = torch.tensor([[[0.0, 0.0, 0.0], [1.0, -1.0, 0.5]]])
     uv = renderer.project(p)[0]

@@ -6,7 +6,7 @@ import pytest
 from lerobot.datasets.lerobot_dataset import LeRobotDataset
 
 from sigma_data.importers import ImportOutputConfig
-from sigma_data.teleop import (
+from sigma_data.importers.teleop import (
     EventSource,
     ScriptedDevice,
     ScriptStep,

@@ -1,11 +1,12 @@
 """Collection shards as a DataTrove pipeline step, for clusters (optional extra ``cluster``: ``datatrove``).
 
-:class:`CollectShards` runs :func:`sigma_data.collect.collect_shard` for the shards of a collection under any
-DataTrove executor: task ``rank`` of ``world_size`` takes shards ``rank, rank + world_size, ...``. ``sigma-data
-collect --executor=datatrove`` runs it with ``LocalPipelineExecutor`` on this machine; on a Slurm cluster, run
-it with ``SlurmPipelineExecutor`` (one job array task per shard) and then ``sigma-data collect`` with the same
-options, which reuses every finished shard and only merges (``docs/cluster.md``). Shard markers, not DataTrove's
-completion files, decide what is done, so reruns and mixed executors agree.
+:class:`CollectShards` runs :func:`sigma_data.collect.shard.collect_shard` for the shards of a collection under
+any DataTrove executor: task ``rank`` of ``world_size`` takes shards ``rank, rank + world_size, ...``.
+``sigma-data collect --executor=datatrove`` runs it with ``LocalPipelineExecutor`` on this machine
+(:func:`run_local`); on a Slurm cluster, run it with ``SlurmPipelineExecutor`` (one job array task per shard) and
+then ``sigma-data collect`` with the same options, which reuses every finished shard that verifies and only
+merges (``docs/cluster.md``). Shard markers, not DataTrove's completion files, decide what is done, so reruns
+and mixed executors agree.
 """
 
 from __future__ import annotations
@@ -16,14 +17,10 @@ from typing import Any
 from datatrove.executor import LocalPipelineExecutor
 from datatrove.pipeline.base import PipelineStep
 
-from sigma_data.collect import (
-    CollectConfig,
-    ShardResult,
-    ShardSpec,
-    collect_shard,
-    finished_shard,
-    plan_shards,
-)
+from sigma_data.collect.config import CollectConfig, ShardResult, ShardSpec
+from sigma_data.collect.envs import close_envs
+from sigma_data.collect.planning import finished_shard, plan_shards
+from sigma_data.collect.shard import collect_shard
 
 
 class CollectShards(PipelineStep):
@@ -43,7 +40,6 @@ class CollectShards(PipelineStep):
 
     def run(self, data: Any = None, rank: int = 0, world_size: int = 1) -> Any:
         import sigma_data  # noqa: F401  (headless GL before robosuite in a fresh process)
-        from sigma_data.collect import close_envs
 
         try:
             for spec in self.shards[rank::world_size]:

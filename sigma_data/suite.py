@@ -2,7 +2,7 @@
 
 Quick start (what the collection pipeline does per episode)::
 
-    from sigma_data.tasks import get_task, get_variation, make_env, reset_env
+    from sigma_data.suite import get_task, get_variation, make_env, reset_env
 
     task = get_task("stack")
     variation = get_variation(task, "green_on_red")
@@ -22,84 +22,22 @@ per unit action), 20 Hz control, no camera observations (render from ``env.sim``
 
 from __future__ import annotations
 
-from collections.abc import Callable, Mapping, Sequence
-from dataclasses import dataclass
-from types import MappingProxyType
+from collections.abc import Mapping, Sequence
 from typing import Any
 
 import numpy as np
 
-from sigma_data.experts.base import ExpertFn
 from sigma_data.experts.door import door_expert
 from sigma_data.experts.lift import lift_expert
 from sigma_data.experts.nut_assembly import nut_assembly_expert
 from sigma_data.experts.pick_place import pick_place_expert
 from sigma_data.experts.stack import stack_expert
 from sigma_data.tasks import door, lift, nut_assembly, pick_place, stack
-
-Bounds = tuple[float, float, float, float, float, float]
-SuccessFn = Callable[[Any, "Variation"], bool]
+from sigma_data.tasks.spec import Bounds, TaskSpec, Variation
 
 ROBOT = "Panda"
 CONTROL_FREQ = 20
 CONTROLLER = "BASIC"  # composite controller; its arm part is OSC_POSE (delta, base frame)
-
-
-@dataclass(frozen=True)
-class Variation:
-    """One language-conditioned variant of a task.
-
-    ``instructions[0]`` is the canonical instruction; the others are paraphrases for training.
-    ``params`` tells the expert and the success check what the instruction asks (e.g. ``{"object": "milk"}``).
-    """
-
-    name: str
-    instructions: tuple[str, ...]
-    params: Mapping[str, Any]
-
-    def __post_init__(self) -> None:
-        if not self.instructions:
-            raise ValueError(f"variation '{self.name}' needs at least one instruction")
-        object.__setattr__(self, "params", MappingProxyType(dict(self.params)))
-
-    @property
-    def instruction(self) -> str:
-        """The canonical instruction."""
-        return self.instructions[0]
-
-
-@dataclass(frozen=True)
-class TaskSpec:
-    """A robosuite task: environment, variations, policy workspace, expert and success check.
-
-    ``bounds`` is the policy workspace box ``(xmin, ymin, zmin, xmax, ymax, zmax)`` in world metres (cubes,
-    so voxel grids and orthographic virtual views stay isotropic); robosuite's table top is at z = 0.8.
-    ``max_steps`` is the control-step budget of one expert episode (20 steps = 1 s).
-    """
-
-    name: str
-    env_name: str
-    env_kwargs: Mapping[str, Any]
-    variations: tuple[Variation, ...]
-    bounds: Bounds
-    expert: ExpertFn
-    success: SuccessFn
-    max_steps: int
-
-    def __post_init__(self) -> None:
-        object.__setattr__(self, "env_kwargs", MappingProxyType(dict(self.env_kwargs)))
-        lo, hi = np.asarray(self.bounds[:3]), np.asarray(self.bounds[3:])
-        if len(self.bounds) != 6 or np.any(hi <= lo):
-            raise ValueError(
-                f"task '{self.name}': bounds must be (xmin, ymin, zmin, xmax, ymax, zmax), got {self.bounds}"
-            )
-        names = [v.name for v in self.variations]
-        if not names or len(set(names)) != len(names):
-            raise ValueError(f"task '{self.name}': variation names must be unique and non-empty, got {names}")
-
-    @property
-    def variation_names(self) -> tuple[str, ...]:
-        return tuple(v.name for v in self.variations)
 
 
 def _v(name: str, params: Mapping[str, Any], *instructions: str) -> Variation:

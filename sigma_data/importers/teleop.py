@@ -237,7 +237,7 @@ class TeleopSession:
         on_step: Callable[[], None] | None = None,
         reset: Callable[[int], None] | None = None,
     ):
-        from sigma_data.tasks import reset_env
+        from sigma_data.suite import reset_env
 
         self.env, self.task, self.variation = env, task, variation
         self.device, self.events = device, events
@@ -364,7 +364,7 @@ def record_teleop(
 ) -> tuple[ImportSummary, list[EpisodeOutcome]]:
     """Run a teleoperation session and write the kept episodes; devices default to ``cfg.device`` + keys."""
     from sigma_data.replay_render import RenderedFrames
-    from sigma_data.tasks import get_task, get_variation, make_env
+    from sigma_data.suite import get_task, get_variation, make_env
 
     task = get_task(cfg.task)
     variation = get_variation(task, cfg.variation) if cfg.variation else task.variations[0]
@@ -384,7 +384,7 @@ def record_teleop(
         rig = CameraRig(env, render)
         layout = DatasetLayout(render.cameras, render.height, render.width)
         provenance = {
-            "source": f"teleoperation with robosuite {cfg.device} (sigma_data.teleop)",
+            "source": f"teleoperation with robosuite {cfg.device} (sigma_data.importers.teleop)",
             "env_name": task.env_name,
             "env_kwargs": dict(task.env_kwargs),
             "bounds": list(task.bounds),

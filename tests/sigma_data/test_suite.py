@@ -1,12 +1,12 @@
-"""Task registry: lookups, clear errors, spec sanity and deterministic resets."""
+"""The task suite (sigma_data/suite.py): lookups, clear errors, spec sanity and deterministic resets."""
 
 from __future__ import annotations
 
 import numpy as np
 import pytest
 
-from sigma_data.tasks import TASKS, get_task, get_variation, make_env, reset_env
-from sigma_data.tasks.registry import TaskSpec, Variation
+from sigma_data.suite import TASKS, get_task, get_variation, make_env, reset_env
+from sigma_data.tasks.spec import TaskSpec, Variation
 
 
 def test_suite_has_five_tasks_and_ten_variations():
@@ -121,7 +121,7 @@ def test_same_seed_gives_same_state_in_a_fresh_env():
 
 
 def test_scene_bounds_is_the_union_of_the_task_boxes():
-    from sigma_data.tasks import scene_bounds
+    from sigma_data.suite import scene_bounds
 
     assert scene_bounds(["lift"]) == get_task("lift").bounds
     box = scene_bounds(["lift", "pick_place"])

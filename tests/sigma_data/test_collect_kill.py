@@ -1,0 +1,54 @@
+"""A killed ``sigma-data collect`` leaves nothing running: its spawned helpers exit with it, and the shard a
+helper was writing is not trusted by the next run."""
+
+from __future__ import annotations
+
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import psutil
+
+from sigma_data.collect import MARKER, CollectConfig, ShardSpec, check_shard
+
+
+def test_killing_the_parent_ends_its_helpers(tmp_path):
+    out = tmp_path / "run"
+    script = Path(sys.executable).with_name("sigma-data")
+    cmd = [str(script)] if script.exists() else [sys.executable, "-m", "sigma_data.cli"]
+    cfg = CollectConfig(
+        tasks="lift", episodes=4, shard_size=1, cameras="agentview", height=32, width=32, output_dir=out
+    )
+    args = ["collect", "--tasks=lift", "--episodes=4", "--shard_size=1", "--cameras=agentview", "--height=32",
+            "--width=32", "--workers=2", f"--output_dir={out}", "--progress=false"]  # fmt: skip
+    # The helper takes shards from the front (this process from the back): once the first shard's directory
+    # exists, the helper is writing it.
+    helper_shard = out / "shards" / ShardSpec("lift", "lift_cube", (0,)).name
+    log = tmp_path / "collect.log"
+    with log.open("w") as sink:
+        proc = subprocess.Popen(cmd + args, stdout=sink, stderr=subprocess.STDOUT)
+    children: list[psutil.Process] = []
+    try:
+        deadline = time.monotonic() + 300
+        while not helper_shard.exists():
+            assert proc.poll() is None, f"collect exited ({proc.returncode}): {log.read_text()[-2000:]}"
+            assert time.monotonic() < deadline, "the helper never started a shard"
+            time.sleep(0.1)
+        children = psutil.Process(proc.pid).children(recursive=True)
+        assert children, "no helper process"
+        proc.send_signal(signal.SIGKILL)  # the parent only
+        proc.wait()
+        _, alive = psutil.wait_procs(children, timeout=10)
+        assert not alive, f"processes outlived their parent: {[(p.pid, p.cmdline()) for p in alive]}"
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+        for child in children:
+            if child.is_running():
+                child.kill()
+    # The helper died mid-shard: no marker, so the next run redoes that shard rather than trusting it.
+    assert not (helper_shard / MARKER).exists()
+    result, why = check_shard(helper_shard, cfg)
+    assert result is None and "interrupted" in why
