@@ -36,7 +36,7 @@ import draccus
 import numpy as np
 
 import sigma_data  # noqa: F401  (headless GL before robosuite)
-from sigma_data.cameras import DEFAULT_CAMERAS
+from sigma_data.cameras import DEFAULT_CAMERAS, RenderOptions
 from sigma_data.collect import CollectConfig, collect
 
 
@@ -245,9 +245,7 @@ def main() -> None:
     base = CollectConfig(
         tasks=cfg.task,
         episodes=cfg.episodes,
-        cameras=cfg.cameras,
-        height=cfg.size,
-        width=cfg.size,
+        render=RenderOptions(cameras=cfg.cameras, height=cfg.size, width=cfg.size),
         shard_size=cfg.episodes,
         progress=False,
     )
@@ -265,8 +263,8 @@ def main() -> None:
     )
     runs[-1]["notes"] = f"writer {b['write_s']:.1f} s of {b['wall']:.1f} s"
 
-    def sigma(name: str, **kw) -> dict:
-        c = replace(base, output_dir=work / name, **kw)
+    def sigma(name: str, dense: bool = True, keyframe: bool = True, **kw) -> dict:
+        c = replace(base, output=replace(base.output, dir=work / name, dense=dense, keyframe=keyframe), **kw)
         r = {"episodes": c.episodes, **isolated(run_sigma, c)}
         r["vs_baseline"] = r["kept"] / r["wall"] * 60 / base_rate
         r["notes"] = (

@@ -78,7 +78,8 @@ class LearningBenchConfig:
 
 
 def collect_data(cfg: LearningBenchConfig) -> tuple[Path, Path]:
-    from sigma_data.collect import CollectConfig, collect
+    from sigma_data.cameras import RenderOptions
+    from sigma_data.collect import CollectConfig, CollectOutputConfig, collect
 
     roots = []
     for where, episodes, start in (("train", cfg.episodes, 0), ("heldout", cfg.heldout_episodes, 50_000)):
@@ -91,12 +92,10 @@ def collect_data(cfg: LearningBenchConfig) -> tuple[Path, Path]:
                 tasks=cfg.task,
                 episodes=episodes,
                 start_seed=start,
-                output_dir=out,
-                repo_id=f"local/learning_{where}",
-                cameras=",".join(cfg.cameras),
-                height=cfg.image_size,
-                width=cfg.image_size,
-                dense=False,
+                output=CollectOutputConfig(dir=out, repo_id=f"local/learning_{where}", dense=False),
+                render=RenderOptions(
+                    cameras=",".join(cfg.cameras), height=cfg.image_size, width=cfg.image_size
+                ),
                 workers=cfg.workers,
                 shard_size=10,
             )

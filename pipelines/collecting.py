@@ -15,24 +15,21 @@ def collect_demonstrations(
     image_size: int,
     workers: int,
     repo_id: str,
-    **options: Any,
+    **output: Any,
 ) -> dict[str, Path]:
-    """Collect ``episodes`` seeds per variation of ``tasks``; ``options`` are further ``CollectConfig`` fields
+    """Collect ``episodes`` seeds per variation of ``tasks``; ``output`` are further ``--output.*`` fields
     (``dense=False``, ``dense_depth=False``...). Returns the written datasets by kind."""
-    from sigma_data.collect import CollectConfig, collect
+    from sigma_data.cameras import RenderOptions
+    from sigma_data.collect import CollectConfig, CollectOutputConfig, collect
 
     summary = collect(
         CollectConfig(
             tasks=",".join(tasks),
             episodes=episodes,
-            output_dir=Path(output_dir) / "data",
-            repo_id=repo_id,
-            cameras=",".join(cameras),
-            height=image_size,
-            width=image_size,
+            output=CollectOutputConfig(dir=Path(output_dir) / "data", repo_id=repo_id, **output),
+            render=RenderOptions(cameras=",".join(cameras), height=image_size, width=image_size),
             workers=workers,
             progress=False,
-            **options,
         )
     )
     print(summary.line(), flush=True)

@@ -2,8 +2,8 @@
 
 One collection by the scripted experts writes both datasets from the same episodes: the keyframe dataset (RGB-D,
 calibration, next-keyframe actions) for sigma, and an RGB-only dense dataset (every 20 Hz control step, 7-D
-OSC_POSE actions; ``--dense_depth=false``, so stock image policies take it as it is) for the stock policies. Every
-policy trains with the stock ``lerobot-train``, one at a time (the machine's cores go to one job), and is
+OSC_POSE actions; ``--output.dense_depth=false``, so stock image policies take it as it is) for the stock policies.
+Every policy trains with the stock ``lerobot-train``, one at a time (the machine's cores go to one job), and is
 evaluated on the same held-out seeds (from 100000, per variation): sigma by ``sigma-eval`` in keyframe control,
 the stock policies by the stock ``lerobot-eval`` in the dense control mode of ``--env.type=sigma_robosuite``.
 

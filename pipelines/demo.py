@@ -77,8 +77,10 @@ class StageTimes:
 
 def collect_stage(cfg: DemoConfig) -> dict[str, Path]:
     """Keyframe dataset (``episodes`` per variation) and dense dataset (``dense_episodes``, same first seeds)."""
-    from sigma_data.collect import CollectConfig, collect
+    from sigma_data.cameras import RenderOptions
+    from sigma_data.collect import CollectConfig, CollectOutputConfig, collect
 
+    render = RenderOptions(cameras=",".join(cfg.cameras), height=cfg.image_size, width=cfg.image_size)
     outputs = {}
     for kind, episodes, where in (
         ("keyframe", cfg.episodes, "data"),
@@ -88,13 +90,13 @@ def collect_stage(cfg: DemoConfig) -> dict[str, Path]:
             CollectConfig(
                 tasks=",".join(cfg.tasks),
                 episodes=episodes,
-                output_dir=cfg.output_dir / where,
-                repo_id="local/sigma_demo",
-                cameras=",".join(cfg.cameras),
-                height=cfg.image_size,
-                width=cfg.image_size,
-                dense=kind == "dense",
-                keyframe=kind == "keyframe",
+                output=CollectOutputConfig(
+                    dir=cfg.output_dir / where,
+                    repo_id="local/sigma_demo",
+                    dense=kind == "dense",
+                    keyframe=kind == "keyframe",
+                ),
+                render=render,
                 workers=cfg.workers,
                 shard_size=max(1, -(-episodes // cfg.workers)),
             )

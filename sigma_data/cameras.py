@@ -12,7 +12,10 @@ per camera, a :class:`~sigma_data.episode.CameraFrame`:
   centre at ``(u + 0.5, v + 0.5)``;
 * ``extrinsics`` (4, 4) camera-to-world in OpenCV axes (x right, y down, z forward).
 
-:func:`backproject` and :func:`fused_cloud` turn them into world-frame points.
+:func:`backproject` and :func:`fused_cloud` turn them into world-frame points. :class:`RenderOptions` are the
+``--render.*`` options of every command that renders (``sigma-data collect``, ``import hdf5``, ``import teleop``);
+:func:`parse_cameras` reads a comma-separated camera list and :meth:`RenderOptions.config` gives the renderers'
+:class:`RenderConfig`.
 """
 
 from __future__ import annotations
@@ -41,6 +44,36 @@ class RenderConfig:
     fast: bool = True
     # Depth beyond this (background, far plane) is clipped to it, metres.
     max_depth: float = 3.0
+
+
+def parse_cameras(text: str, flag: str = "--render.cameras") -> tuple[str, ...]:
+    """``"a,b"`` -> ``("a", "b")``; ``ValueError`` naming ``flag`` if empty or duplicated."""
+    cams = tuple(c.strip() for c in text.split(",") if c.strip())
+    if not cams:
+        raise ValueError(f"no cameras given ({flag})")
+    if len(set(cams)) != len(cams):
+        raise ValueError(f"duplicate camera names in {flag}={text}")
+    return cams
+
+
+@dataclass
+class RenderOptions:
+    """Which cameras to render and how (``--render.*`` of ``sigma-data collect`` and the importers that render)."""
+
+    # Cameras, comma-separated.
+    cameras: str = ",".join(DEFAULT_CAMERAS)
+    # Image height in pixels (every camera).
+    height: int = 128
+    # Image width in pixels (every camera).
+    width: int = 128
+    # Render with the fast settings (MSAA/reflections/skybox off: exact depth, ~3x faster).
+    fast: bool = True
+    # Depth is clipped to this many metres (background pixels hit the far plane, hundreds of metres away).
+    max_depth: float = 3.0
+
+    def config(self) -> RenderConfig:
+        """The renderers' :class:`RenderConfig` (``ValueError`` if ``cameras`` is empty or repeats a name)."""
+        return RenderConfig(parse_cameras(self.cameras), self.height, self.width, self.fast, self.max_depth)
 
 
 def camera_intrinsics(model: Any, cam_id: int, height: int, width: int) -> np.ndarray:

@@ -1,14 +1,15 @@
 """``sigma-data``: command-line entry point with sub-commands (draccus dataclass configs, like LeRobot).
 
-    sigma-data collect --tasks=lift,stack --episodes=50 --workers=2 --output_dir=outputs/sigma_data
-    sigma-data collect --tasks=all --cameras=agentview,robot0_eye_in_hand --height=84 --width=84
+    sigma-data collect --tasks=lift,stack --episodes=50 --workers=2 --output.dir=outputs/sigma_data
+    sigma-data collect --tasks=all --render.cameras=agentview,robot0_eye_in_hand --render.height=84 --render.width=84
     sigma-data validate --root=outputs/sigma_data/keyframe
-    sigma-data import hdf5 --path=demo.hdf5 --output.dir=outputs/imported --cameras=agentview --height=84 --width=84
+    sigma-data import hdf5 --path=demo.hdf5 --render.cameras=agentview --render.height=84 --render.width=84
     sigma-data import hdf5 --path=low_dim_v15.hdf5 --filter_key=train --max_episodes=50 --output.dir=outputs/lift_ph
     sigma-data import raw --path=/data/ur5_episodes --output.dir=outputs/real
     sigma-data import teleop --task=lift --device=keyboard --episodes=5 --output.dir=outputs/teleop
 
-``sigma-data <command> --help`` lists every option of a command.
+``sigma-data <command> --help`` lists every option of a command. ``collect`` and every importer share the
+``--output.*`` options (where and how the datasets are written) and, where they render, ``--render.*``.
 """
 
 from __future__ import annotations

@@ -12,7 +12,7 @@ registers the env config with LeRobot and the gym id with gymnasium. Example::
 ``--env.control=dense`` evaluates stock LeRobot policies (ACT, Diffusion Policy, ...) trained on the dense
 dataset: one 7-D OSC_POSE action per 20 Hz step, the task's own step limit, observations named like the dense
 dataset's; ``--env.depth=false`` leaves depth out (an RGB-only dense dataset, ``sigma-data collect
---dense_depth=false``)::
+--output.dense_depth=false``)::
 
     lerobot-eval --policy.path=outputs/act/checkpoints/last/pretrained_model \
         --env.type=sigma_robosuite --env.control=dense --env.depth=false --env.task=lift \

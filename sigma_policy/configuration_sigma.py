@@ -12,6 +12,7 @@ from the preset in ``__post_init__``; a field given explicitly (CLI or ``config.
 | decoder_kernel | 11 | 3 |
 | attn_dropout | 0.1 | 0.0 |
 | use_proprio | False (Σ code) | True (see choice 6) |
+| proprio_position | False | True (grip-site position in the box joins the proprio token; see choice 6) |
 | aug_translation_range, aug_yaw_range_deg | 0.125 m, 45° | 0, 0 (off; see "The small recipe") |
 | optimizer_lr, warm-up, decay steps | 9.6e-4, 2000, 25000 | 1e-2, 20, 2000 |
 | optimizer_exempt_small | False | True (biases, norms, query tokens skip LAMB's trust ratio) |
@@ -48,6 +49,9 @@ Paper-vs-code discrepancies (docs/method.md §13), each a field; default and rea
    ``small`` turns it on: its 64² virtual views barely resolve the fingers, so without it the policy cannot
    tell "about to grasp" from "just grasped" and repeats the grasp keyframe (seen in the first demo runs;
    with proprio and the task's scene box, Lift from 12 demos and 400 steps succeeds in 7 of 10 episodes).
+   ``proprio_position`` adds the grip site's position in the scene box ([-1, 1], moved by the augmentation):
+   whether to close depends on where the gripper is, and with the 36 cm box the heads missed that in one training
+   seed of two (``docs/learning.md``).
 7. Temperature — learnable, ``logit_scale_init=log(1/0.07)``, ``logit_scale_max=None`` (code: unclamped;
    CLIP clamps the scale at 100).
 8. Projection heads — ``projection_activation=True`` (code: Linear + LeakyReLU before L2 normalisation);
@@ -110,6 +114,7 @@ PRESETS: dict[str, dict[str, Any]] = {
         "decoder_kernel": 11,
         "attn_dropout": 0.1,
         "use_proprio": False,
+        "proprio_position": False,
         "head_activation": "relu",
         "lang_film": False,
         "heatmap_refine_px": 0,
@@ -134,6 +139,7 @@ PRESETS: dict[str, dict[str, Any]] = {
         "decoder_kernel": 3,
         "attn_dropout": 0.0,
         "use_proprio": True,
+        "proprio_position": True,
         "head_activation": "leaky_relu",
         "lang_film": True,
         "heatmap_refine_px": 2,
@@ -188,6 +194,9 @@ class SigmaConfig(PreTrainedConfig):
     bc_lambda: float = 0.5
     mask_same_instruction: bool = True
     use_proprio: bool | None = None  # None = from preset (paper False, small True)
+    # With use_proprio: add the grip site's position in the scene box ([-1, 1] per axis, after augmentation) to the
+    # proprio token. None = from preset (paper False, small True).
+    proprio_position: bool | None = None
     logit_scale_init: float = math.log(1 / 0.07)
     logit_scale_max: float | None = None
     projection_activation: bool = True
@@ -360,5 +369,5 @@ class SigmaConfig(PreTrainedConfig):
         """Architecture numbers for ``SigmaNetwork`` (language dimensions come from the text encoder)."""
         names = {f.name for f in fields(NetworkConfig)}
         values = {k: getattr(self, k) for k in names if hasattr(self, k) and getattr(self, k) is not None}
-        values["proprio_dim"] = 3
+        values["proprio_dim"] = 6 if self.proprio_position else 3
         return NetworkConfig(**values)

@@ -39,7 +39,7 @@ from sigma_policy.augmentation import se3_augment
 from sigma_policy.configuration_sigma import SigmaConfig
 from sigma_policy.contrastive import contrastive_losses, instruction_ids
 from sigma_policy.heatmap import gaussian_heatmaps, heatmap_to_cube_point
-from sigma_policy.network import NetworkOutput, SigmaNetwork
+from sigma_policy.network import DenseBlock, NetworkOutput, SigmaNetwork
 from sigma_policy.pointcloud import bounds_mask, cube_to_world, depth_to_world_points, world_to_cube
 from sigma_policy.renderer import VirtualViewRenderer
 from sigma_policy.rotation import bins_to_quat, quat_to_bins
@@ -122,6 +122,18 @@ class SigmaPolicy(PreTrainedPolicy):
             )
             model.network.lang_film = None
             model.config.lang_film = False
+        proprio = model.network.proprio_preprocess
+        if proprio is not None and model.config.proprio_position:
+            with safe_open(model_file, "pt") as f:
+                key = "network.proprio_preprocess.linear.weight"
+                saved_in = f.get_slice(key).get_shape()[1] if key in names else proprio.linear.in_features
+            if saved_in == 3:  # saved before policy.proprio_position existed
+                logging.getLogger(__name__).warning(
+                    "%s has a gripper-only proprio token (saved before policy.proprio_position existed)",
+                    model_file,
+                )
+                model.network.proprio_preprocess = DenseBlock(3, proprio.linear.out_features)
+                model.config.proprio_position = False
         return super()._load_as_safetensor(model, model_file, map_location, strict)
 
     # ------------------------------------------------------------------ LeRobot API
@@ -163,7 +175,7 @@ class SigmaPolicy(PreTrainedPolicy):
         tasks = self._tasks(batch, action.shape[0])
 
         cloud = self._cloud(batch, t=0)
-        points, pos, quat, _ = se3_augment(
+        points, pos, quat, transforms = se3_augment(
             cloud.points,
             action[:, :3],
             action[:, 3:7],
@@ -187,7 +199,7 @@ class SigmaPolicy(PreTrainedPolicy):
             )
             goal_views = self._add_render_noise(self._render(goal_points, goal.colors, self.scene_bounds))
 
-        out = self._run_network(views, tasks, batch, goal_views=goal_views)
+        out = self._run_network(views, tasks, batch, goal_views=goal_views, transforms=transforms)
 
         # ---- behaviour cloning (per sample)
         target_uv = self.renderer.project(world_to_cube(pos[:, None], self.scene_bounds))[:, 0]  # (B, V, 2)
@@ -383,13 +395,32 @@ class SigmaPolicy(PreTrainedPolicy):
         sentence = torch.stack([self._lang_cache[s][1] for s in tasks])
         return tokens, sentence
 
+    def _proprio(self, batch: dict[str, Any], transforms: Tensor | None) -> Tensor | None:
+        """The proprio token's input: [gripper_open, finger_q1, finger_q2] (+ the grip site's position in the
+        scene box with ``proprio_position``, moved by the same augmentation as the cloud)."""
+        if not self.config.use_proprio:
+            return None
+        state = self._take(batch, OBS_STATE, 0, 1).float()
+        proprio = state[:, 7:10]
+        if self.config.proprio_position:
+            pos = state[:, :3]
+            if transforms is not None:
+                pos = torch.einsum("bij,bj->bi", transforms[:, :3, :3].to(pos), pos) + transforms[
+                    :, :3, 3
+                ].to(pos)
+            proprio = torch.cat([proprio, world_to_cube(pos, self.scene_bounds)], dim=-1)
+        return proprio
+
     def _run_network(
-        self, views: Tensor, tasks: list[str], batch: dict[str, Any], goal_views: Tensor | None = None
+        self,
+        views: Tensor,
+        tasks: list[str],
+        batch: dict[str, Any],
+        goal_views: Tensor | None = None,
+        transforms: Tensor | None = None,
     ) -> NetworkOutput:
         tokens, sentence = self._language(tasks)
-        proprio = None
-        if self.config.use_proprio:
-            proprio = self._take(batch, OBS_STATE, 0, 1)[:, 7:10].float()
+        proprio = self._proprio(batch, transforms)
         device = views.device
         autocast = (
             torch.autocast("cuda", dtype=torch.bfloat16)

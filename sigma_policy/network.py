@@ -41,7 +41,7 @@ LRELU_SLOPE = 0.02
 
 @dataclass(frozen=True)
 class NetworkConfig:
-    """Architecture numbers; the defaults are the paper / released-code configuration (model_spec §3.1)."""
+    """Architecture numbers; the defaults are the paper / released-code configuration (docs/method.md §5, §12)."""
 
     num_views: int = 5
     in_channels: int = 10

@@ -1,9 +1,9 @@
 """Collect scripted-expert demonstrations into the dense and keyframe LeRobot datasets (``sigma-data collect``).
 
 Work is cut into shards of seeds (``shard_size`` seeds of one task variation). Each shard is written by one
-worker process into ``<output_dir>/shards/<name>/{dense,keyframe}`` and ends with a ``shard.json`` marker that
+worker process into ``<output.dir>/shards/<name>/{dense,keyframe}`` and ends with a ``shard.json`` marker that
 lists the files it wrote; the shards are then merged with LeRobot's ``aggregate_datasets`` into
-``<output_dir>/{dense,keyframe}`` (a single shard is copied).
+``<output.dir>/{dense,keyframe}`` (a single shard is copied).
 
 * Rerunning reuses the shards whose marker matches the configuration and whose recorded files are intact (size,
   SHA-256, parquet row counts) and load with the recorded episode counts; anything else (an interrupted or
@@ -21,7 +21,7 @@ executor):
 
 * :mod:`~sigma_data.collect.config`: the options (:class:`CollectConfig`), shards, results and run summary.
 * :mod:`~sigma_data.collect.manifest`: the files a finished shard recorded, and the check that they are intact.
-* :mod:`~sigma_data.collect.planning`: the shards of a run, claiming ``output_dir``, which shards to reuse.
+* :mod:`~sigma_data.collect.planning`: the shards of a run, claiming ``output.dir``, which shards to reuse.
 * :mod:`~sigma_data.collect.envs`: this process's envs and render threads, reused across its shards.
 * :mod:`~sigma_data.collect.shard`: one shard: record, filter, render, write, mark.
 * :mod:`~sigma_data.collect.scheduler`: the shards over this process and its spawned helpers.
@@ -38,6 +38,7 @@ from sigma_data.collect.config import (
     RECORD,
     RUN_OPTIONS,
     CollectConfig,
+    CollectOutputConfig,
     CollectSummary,
     ShardResult,
     ShardSpec,
@@ -56,6 +57,7 @@ __all__ = [
     "RECORD",
     "RUN_OPTIONS",
     "CollectConfig",
+    "CollectOutputConfig",
     "CollectSummary",
     "Helpers",
     "ShardResult",

@@ -1,6 +1,6 @@
 """What a collection is asked to do and what it reports: the options of ``sigma-data collect``
 (:class:`CollectConfig`), the unit of work (:class:`ShardSpec`), a shard's outcome (:class:`ShardResult`) and the
-run's (:class:`CollectSummary`), and the names of the files a run leaves in ``output_dir``."""
+run's (:class:`CollectSummary`), and the names of the files a run leaves in ``output.dir``."""
 
 from __future__ import annotations
 
@@ -11,15 +11,52 @@ from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any
 
-from sigma_data.cameras import DEFAULT_CAMERAS, RenderConfig
+from sigma_data.cameras import RenderOptions
+from sigma_data.output import OutputConfig
 
 # A shard's completion marker: its ShardResult and the files it wrote (written last, after the datasets).
 MARKER = "shard.json"
 DATASETS = ("dense", "keyframe")
-# The run's record in output_dir: its data options (before the first shard) and, once merged, every ShardResult.
+# The run's record in output.dir: its data options (before the first shard) and, once merged, every ShardResult.
 RECORD = "collect.json"
 # Options that change how a collection runs, not what it writes: a rerun may change them and still resume.
-RUN_OPTIONS = frozenset({"output_dir", "workers", "render_threads", "executor", "progress", "overwrite"})
+RUN_OPTIONS = frozenset(
+    {"output.dir", "workers", "render_threads", "executor", "progress", "output.overwrite"}
+)
+# collect.json of a collection made before the output and render options were grouped (--output.*, --render.*)
+# records them under their old flat names: old name -> today's.
+OLD_OPTION_NAMES = {
+    "output_dir": "output.dir",
+    "repo_id": "output.repo_id",
+    "dense": "output.dense",
+    "keyframe": "output.keyframe",
+    "dense_depth": "output.dense_depth",
+    "dense_video": "output.dense_video",
+    "keyframe_video": "output.keyframe_video",
+    "augment_every": "output.augment_every",
+    "overwrite": "output.overwrite",
+    "cameras": "render.cameras",
+    "height": "render.height",
+    "width": "render.width",
+    "fast_render": "render.fast",
+    "max_depth": "render.max_depth",
+}
+
+
+def recorded_options(recorded: dict[str, str]) -> dict[str, str]:
+    """The data options a ``collect.json`` records, under today's names (:data:`OLD_OPTION_NAMES` renamed)."""
+    return {OLD_OPTION_NAMES.get(k, k): v for k, v in recorded.items()}
+
+
+@dataclass
+class CollectOutputConfig(OutputConfig):
+    """Where and how ``sigma-data collect`` writes: ``<dir>/shards/<shard>/{dense,keyframe}``, the merged
+    ``<dir>/{dense,keyframe}`` and ``<dir>/collect.json``."""
+
+    # Where the shards and the merged datasets go.
+    dir: Path = Path("outputs/sigma_data")
+    # LeRobot repo_id prefix of the datasets (local only): <repo_id>_dense, <repo_id>_keyframe.
+    repo_id: str = "local/sigma"
 
 
 @dataclass
@@ -34,33 +71,10 @@ class CollectConfig:
     episodes: int = 10
     # First seed; variation v uses seeds start_seed .. start_seed + episodes - 1.
     start_seed: int = 0
-    # Where shards and the merged datasets go.
-    output_dir: Path = Path("outputs/sigma_data")
-    # LeRobot repo_id prefix of the merged datasets (local only): <repo_id>_dense, <repo_id>_keyframe.
-    repo_id: str = "local/sigma"
-    # Cameras, comma-separated.
-    cameras: str = ",".join(DEFAULT_CAMERAS)
-    # Image height in pixels (every camera).
-    height: int = 128
-    # Image width in pixels (every camera).
-    width: int = 128
-    # Write the dense dataset (every control step).
-    dense: bool = True
-    # Write the keyframe dataset (decision points; action = next keyframe pose).
-    keyframe: bool = True
-    # Store depth in the dense dataset. false: RGB-only dense dataset that stock LeRobot image policies (ACT,
-    # Diffusion Policy) train on as it is (the keyframe dataset always keeps depth).
-    dense_depth: bool = True
-    # Dense camera storage: video (RGB AV1, depth 12-bit lossless HEVC) or PNG/TIFF images.
-    dense_video: bool = True
-    # Keyframe camera storage: PNG/TIFF images by default (exact depth) or video.
-    keyframe_video: bool = False
-    # RVT-style augmentation chains in the keyframe dataset: an extra episode from every N-th frame (0 = off).
-    augment_every: int = 0
-    # Render with the fast settings (MSAA/reflections/skybox off: exact depth, ~3x faster).
-    fast_render: bool = True
-    # Depth is clipped to this many metres (background pixels hit the far plane, hundreds of metres away).
-    max_depth: float = 3.0
+    # Where and how the datasets are written: shards and the merged datasets go to dir.
+    output: CollectOutputConfig = field(default_factory=CollectOutputConfig)
+    # The cameras to render, their image size, the fast exact settings and the depth clip.
+    render: RenderOptions = field(default_factory=RenderOptions)
     # Worker processes (each writes its own shards).
     workers: int = 1
     # Render threads per worker process. With 2 or more, the env records the next episode while this one's frames
@@ -75,9 +89,6 @@ class CollectConfig:
     executor: str = "processes"
     # Show progress bars.
     progress: bool = True
-    # Replace what output_dir holds when it was not written by a collection with these options (another
-    # configuration, another tool, or files of your own). Without it such a directory is an error, never touched.
-    overwrite: bool = False
 
     def __post_init__(self) -> None:
         if self.executor not in ("processes", "datatrove"):
@@ -87,20 +98,20 @@ class CollectConfig:
 
     def data_options(self) -> dict[str, str]:
         """The options that decide what a collection writes (all but :data:`RUN_OPTIONS`), as recorded in
-        ``collect.json``."""
-        return {k: str(v) for k, v in asdict(self).items() if k not in RUN_OPTIONS}
+        ``collect.json``: by their command-line names (``render.height``, ``output.dense``...), values as text."""
+        options: dict[str, Any] = {}
+        for name, value in asdict(self).items():
+            if isinstance(value, dict):  # a sub-config: --render.*, --output.*
+                options.update({f"{name}.{sub}": v for sub, v in value.items()})
+            else:
+                options[name] = value
+        return {k: str(v) for k, v in options.items() if k not in RUN_OPTIONS}
 
     def threads_per_worker(self) -> int:
         """Render threads of each worker process (``render_threads``, or the cores shared among the workers)."""
         if self.render_threads:
             return self.render_threads
         return max(1, len(os.sched_getaffinity(0)) // max(1, self.workers))
-
-    def camera_list(self) -> tuple[str, ...]:
-        cams = tuple(c.strip() for c in self.cameras.split(",") if c.strip())
-        if not cams:
-            raise ValueError("no cameras given (--cameras)")
-        return cams
 
     def task_names(self) -> list[str]:
         from sigma_data.suite import TASKS
@@ -114,28 +125,27 @@ class CollectConfig:
 
     def datasets(self) -> tuple[str, ...]:
         """The datasets this collection writes, of :data:`DATASETS`."""
-        return tuple(k for k, on in (("dense", self.dense), ("keyframe", self.keyframe)) if on)
-
-    def render_config(self) -> RenderConfig:
-        return RenderConfig(self.camera_list(), self.height, self.width, self.fast_render, self.max_depth)
+        return tuple(k for k in DATASETS if getattr(self.output, k))
 
     def fingerprint(self) -> str:
-        """Hash of every option that changes the data (not workers, paths or progress)."""
-        keys = [
-            "cameras",
-            "height",
-            "width",
-            "dense",
-            "keyframe",
-            "dense_depth",
-            "dense_video",
-            "keyframe_video",
-            "augment_every",
-            "fast_render",
-            "max_depth",
-            "model_seed",
-        ]
-        blob = json.dumps({k: getattr(self, k) for k in keys}, sort_keys=True)
+        """Hash of every option that changes a shard's data (not workers, paths or progress). Keyed by the options'
+        names from before they were grouped under ``render`` and ``output``, so shards written then still match."""
+        render, output = self.render, self.output
+        options = {
+            "cameras": render.cameras,
+            "height": render.height,
+            "width": render.width,
+            "dense": output.dense,
+            "keyframe": output.keyframe,
+            "dense_depth": output.dense_depth,
+            "dense_video": output.dense_video,
+            "keyframe_video": output.keyframe_video,
+            "augment_every": output.augment_every,
+            "fast_render": render.fast,
+            "max_depth": render.max_depth,
+            "model_seed": self.model_seed,
+        }
+        blob = json.dumps(options, sort_keys=True)
         return hashlib.sha256(blob.encode()).hexdigest()[:16]
 
 

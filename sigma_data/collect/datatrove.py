@@ -25,7 +25,7 @@ from sigma_data.collect.shard import collect_shard
 
 class CollectShards(PipelineStep):
     """DataTrove step collecting ``shards`` (default: every shard of ``config`` not finished yet) under
-    ``<config.output_dir>/shards``."""
+    ``<config.output.dir>/shards``."""
 
     name = "sigma-data collect"
     type = "robosuite"
@@ -33,7 +33,7 @@ class CollectShards(PipelineStep):
     def __init__(self, config: CollectConfig, shards: list[ShardSpec] | None = None):
         super().__init__()
         self.config = config
-        self.root = Path(config.output_dir) / "shards"
+        self.root = Path(config.output.dir) / "shards"
         if shards is None:
             shards = [s for s in plan_shards(config) if finished_shard(self.root / s.name, config) is None]
         self.shards = list(shards)
@@ -53,19 +53,19 @@ class CollectShards(PipelineStep):
 def run_local(shards: list[ShardSpec], config: CollectConfig) -> list[ShardResult]:
     """Collect ``shards`` with DataTrove's ``LocalPipelineExecutor`` (``config.workers`` processes); raises if one
     is left unfinished."""
-    root = Path(config.output_dir) / "shards"
+    root = Path(config.output.dir) / "shards"
     LocalPipelineExecutor(
         pipeline=[CollectShards(config, shards)],
         tasks=len(shards),
         workers=config.workers,
-        logging_dir=str(Path(config.output_dir) / "datatrove_logs"),
+        logging_dir=str(Path(config.output.dir) / "datatrove_logs"),
         skip_completed=False,  # shard markers decide what is done
     ).run()
     results = [finished_shard(root / s.name, config) for s in shards]
     missing = [s.name for s, r in zip(shards, results, strict=True) if r is None]
     if missing:
         raise RuntimeError(
-            f"datatrove run left shards unfinished: {missing} (logs in {config.output_dir}/datatrove_logs)"
+            f"datatrove run left shards unfinished: {missing} (logs in {config.output.dir}/datatrove_logs)"
         )
     for r in results:
         r.skipped = False

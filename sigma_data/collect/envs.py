@@ -73,7 +73,7 @@ def check_cameras_exist(cfg: CollectConfig, task_names: list[str], reuse: bool) 
 
     for task_name in task_names:
         if reuse:
-            env = cached_env(task_name, cfg.render_config(), cfg.model_seed)
+            env = cached_env(task_name, cfg.render.config(), cfg.model_seed)
             known = set(env.sim.model.camera_names)
         else:
             env = build_env(get_task(task_name), RenderConfig(cameras=()), cfg.model_seed)  # no renderer
@@ -81,7 +81,7 @@ def check_cameras_exist(cfg: CollectConfig, task_names: list[str], reuse: bool) 
                 known = set(env.sim.model.camera_names)
             finally:
                 env.close()
-        unknown = [c for c in cfg.camera_list() if c not in known]
+        unknown = [c for c in cfg.render.config().cameras if c not in known]
         if unknown:
             raise ValueError(
                 f"unknown camera(s) {unknown} for task '{task_name}'; known: {', '.join(sorted(known))}"

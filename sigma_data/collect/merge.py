@@ -1,4 +1,4 @@
-"""Merging the shards' datasets of one kind into ``<output_dir>/{dense,keyframe}`` with LeRobot's
+"""Merging the shards' datasets of one kind into ``<output.dir>/{dense,keyframe}`` with LeRobot's
 ``aggregate_datasets`` (:func:`merge_shards`; a single shard is copied), with the provenance sidecars merged
 beside, and the two LeRobot 0.6.1 workarounds the merge needs. The merge is redone every run and swapped in
 whole; an error names the shards it was merging (and, where their markers tell, the damaged one)."""

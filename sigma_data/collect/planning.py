@@ -1,4 +1,4 @@
-"""Before any shard runs: which shards a collection has (:func:`plan_shards`), whether ``output_dir`` may be
+"""Before any shard runs: which shards a collection has (:func:`plan_shards`), whether ``output.dir`` may be
 written (:func:`claim_output_dir`), and which shards on disk a rerun can reuse (:func:`check_shard`).
 
 Resume works shard by shard. A shard is reused when its ``shard.json`` marker (written last) matches the
@@ -13,7 +13,14 @@ import json
 import shutil
 from pathlib import Path
 
-from sigma_data.collect.config import MARKER, RECORD, CollectConfig, ShardResult, ShardSpec
+from sigma_data.collect.config import (
+    MARKER,
+    RECORD,
+    CollectConfig,
+    ShardResult,
+    ShardSpec,
+    recorded_options,
+)
 from sigma_data.collect.manifest import damage
 from sigma_data.contract import SIDECAR
 
@@ -26,8 +33,7 @@ def plan_shards(cfg: CollectConfig) -> list[ShardSpec]:
         raise ValueError(f"episodes must be >= 1, got {cfg.episodes}")
     if cfg.shard_size < 1 or cfg.workers < 1:
         raise ValueError(f"shard_size and workers must be >= 1, got {cfg.shard_size}, {cfg.workers}")
-    if not (cfg.dense or cfg.keyframe):
-        raise ValueError("nothing to write: enable --dense and/or --keyframe")
+    cfg.output.kinds()  # ValueError if there is nothing to write
     names = cfg.task_names()
     tasks = [get_task(n) for n in names]
     wanted = (
@@ -54,27 +60,28 @@ def plan_shards(cfg: CollectConfig) -> list[ShardSpec]:
 
 
 def claim_output_dir(cfg: CollectConfig) -> None:
-    """Make sure ``output_dir`` holds nothing but this collection (or a resumable run of it), then record the
+    """Make sure ``output.dir`` holds nothing but this collection (or a resumable run of it), then record the
     options in ``collect.json`` before any shard is written. Anything else there raises ``FileExistsError``
-    (``--overwrite=true`` replaces it): a directory of someone else's files, datasets from another tool, or a
-    collection made with other options (other tasks, seeds, image size...)."""
-    out = Path(cfg.output_dir)
+    (``--output.overwrite=true`` replaces it): a directory of someone else's files, datasets from another tool,
+    or a collection made with other options (other tasks, seeds, image size...). A ``collect.json`` written before
+    the options were grouped names them the old way (``height``, ``dense``...): they are read as today's."""
+    out = Path(cfg.output.dir)
     record = out / RECORD
     mine = cfg.data_options()
     present = sorted(p.name for p in out.iterdir()) if out.is_dir() else []
-    if present and not cfg.overwrite:
-        hint = "pass --overwrite=true to replace it, or choose another --output_dir"
+    if present and not cfg.output.overwrite:
+        hint = "pass --output.overwrite=true to replace it, or choose another --output.dir"
         if RECORD not in present:
             raise FileExistsError(
                 f"{out} is not empty ({', '.join(present[:5])}) and holds no {RECORD}: {hint}"
             )
-        previous = json.loads(record.read_text()).get("config", {})
+        previous = recorded_options(json.loads(record.read_text()).get("config", {}))
         defaults = CollectConfig().data_options()  # options added since that run
         differ = [k for k in mine if previous.get(k, defaults[k]) != mine[k]]
         if differ:
             changes = ", ".join(f"{k} {previous.get(k, defaults[k])} -> {mine[k]}" for k in differ)
             raise FileExistsError(f"{out} holds a collection made with other options ({changes}): {hint}")
-    if present and cfg.overwrite:
+    if present and cfg.output.overwrite:
         for name in ("dense", "keyframe", "shards", RECORD):
             path = out / name
             if path.is_dir():
@@ -118,7 +125,7 @@ def check_shard(shard_dir: Path, cfg: CollectConfig) -> tuple[ShardResult | None
     for kind in kinds:
         root = shard_dir / kind
         try:
-            meta = LeRobotDatasetMetadata(f"{cfg.repo_id}_{kind}", root=root)
+            meta = LeRobotDatasetMetadata(f"{cfg.output.repo_id}_{kind}", root=root)
         except Exception as exc:
             return None, f"{kind} metadata does not load ({type(exc).__name__}: {exc})"
         if meta.total_episodes != result.episodes[kind]:

@@ -1,4 +1,4 @@
-"""A whole collection (:func:`collect`): plan the shards, claim ``output_dir``, reuse the finished shards that
+"""A whole collection (:func:`collect`): plan the shards, claim ``output.dir``, reuse the finished shards that
 verify and redo the rest (saying which and why), run the remaining shards with the chosen executor, merge each
 dataset kind, and record the run in ``collect.json``."""
 
@@ -54,7 +54,7 @@ def collect(cfg: CollectConfig) -> CollectSummary:
 
     start = time.perf_counter()
     shards = plan_shards(cfg)
-    out = Path(cfg.output_dir)
+    out = Path(cfg.output.dir)
     shards_dir = out / "shards"
     claim_output_dir(cfg)
 
@@ -90,7 +90,7 @@ def collect(cfg: CollectConfig) -> CollectSummary:
             if not roots:
                 shutil.rmtree(target, ignore_errors=True)
                 continue
-            merge_shards(kind, roots, target, f"{cfg.repo_id}_{kind}")
+            merge_shards(kind, roots, target, f"{cfg.output.repo_id}_{kind}")
             outputs[kind] = target
     finally:
         if helpers is not None:

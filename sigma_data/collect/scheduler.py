@@ -90,7 +90,7 @@ class Helpers:
             max_workers=n,
             mp_context=ctx,
             initializer=_warm_up,
-            initargs=(os.getpid(), self.progress, first_task, cfg.render_config(), cfg.model_seed),
+            initargs=(os.getpid(), self.progress, first_task, cfg.render.config(), cfg.model_seed),
         )
         self.n = n
         # One trivial job per helper: the pool spawns its processes now, not at the first shard.

@@ -68,7 +68,7 @@ def _provenance(cfg: CollectConfig, shards_tasks: list[str]) -> dict[str, Any]:
         "env_kwargs": {t: dict(get_task(t).env_kwargs) for t in shards_tasks},
         "env_name": {t: get_task(t).env_name for t in shards_tasks},
         "bounds": {t: list(get_task(t).bounds) for t in shards_tasks},
-        "render": asdict(cfg.render_config()),
+        "render": asdict(cfg.render.config()),
         "model_seed": cfg.model_seed,
         "fingerprint": cfg.fingerprint(),
     }
@@ -168,7 +168,7 @@ def collect_shard(
     shard_dir.mkdir(parents=True)
     task = get_task(spec.task)
     variation = get_variation(task, spec.variation)
-    render = cfg.render_config()
+    render = cfg.render.config()
     result = ShardResult(spec.name, fingerprint=cfg.fingerprint())
     env = cached_env(spec.task, render, cfg.model_seed)  # stays open for the task's next shard
     rig = CameraRig(env, render)
@@ -187,22 +187,22 @@ def collect_shard(
     }
     with contextlib.ExitStack() as stack:
         writers: dict[str, SigmaWriter] = {}
-        if cfg.dense:
+        if cfg.output.dense:
             writers["dense"] = stack.enter_context(
                 DenseWriter(
                     shard_dir / "dense",
-                    use_videos=cfg.dense_video,
-                    repo_id=f"{cfg.repo_id}_dense",
-                    **(common | {"layout": dataclasses.replace(layout, depth=cfg.dense_depth)}),
+                    use_videos=cfg.output.dense_video,
+                    repo_id=f"{cfg.output.repo_id}_dense",
+                    **(common | {"layout": dataclasses.replace(layout, depth=cfg.output.dense_depth)}),
                 )
             )
-        if cfg.keyframe:
+        if cfg.output.keyframe:
             writers["keyframe"] = stack.enter_context(
                 KeyframeWriter(
                     shard_dir / "keyframe",
-                    use_videos=cfg.keyframe_video,
-                    augment_every=cfg.augment_every,
-                    repo_id=f"{cfg.repo_id}_keyframe",
+                    use_videos=cfg.output.keyframe_video,
+                    augment_every=cfg.output.augment_every,
+                    repo_id=f"{cfg.output.repo_id}_keyframe",
                     **common,
                 )
             )

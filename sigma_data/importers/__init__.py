@@ -33,6 +33,7 @@ from typing import Any
 import numpy as np
 
 from sigma_data.episode import CameraViews, Episode
+from sigma_data.output import OutputConfig
 from sigma_data.writers import (
     DatasetLayout,
     DenseWriter,
@@ -56,41 +57,6 @@ class SourceError(ValueError):
         if field:
             where.append(field)
         super().__init__(f"{': '.join(where)}: {problem}")
-
-
-@dataclass
-class ImportOutputConfig:
-    """Where and how an import writes its datasets: ``<dir>/dense``, ``<dir>/keyframe``, ``<dir>/import.json``."""
-
-    dir: Path = Path("outputs/sigma_import")
-    # LeRobot repo_id prefix (local only): <repo_id>_dense, <repo_id>_keyframe.
-    repo_id: str = "local/sigma_import"
-    # Which datasets to write.
-    dense: bool = True
-    keyframe: bool = True
-    # Store depth in the dense dataset (false: RGB-only, what stock LeRobot image policies such as ACT and
-    # Diffusion Policy train on as it is; the keyframe dataset always keeps depth).
-    dense_depth: bool = True
-    # Camera storage: video (dense default) or PNG/TIFF images (keyframe default; exact depth).
-    dense_video: bool = True
-    keyframe_video: bool = False
-    # RVT-style augmentation chains in the keyframe dataset: an extra episode from every N-th frame (0 = off).
-    augment_every: int = 0
-    # Replace existing datasets under dir (otherwise an existing dataset is an error, never touched).
-    overwrite: bool = False
-
-    def kinds(self) -> list[str]:
-        kinds = [k for k, on in (("dense", self.dense), ("keyframe", self.keyframe)) if on]
-        if not kinds:
-            raise ValueError("nothing to write: enable --output.dense and/or --output.keyframe")
-        return kinds
-
-    def check_writable(self) -> None:
-        """Fail before any work if a target dataset exists and ``overwrite`` is off."""
-        for kind in self.kinds():
-            root = Path(self.dir) / kind
-            if root.exists() and not self.overwrite:
-                raise FileExistsError(f"{root} already exists (pass --output.overwrite=true to replace it)")
 
 
 class OutputError(OSError):
@@ -150,7 +116,7 @@ class DatasetSink:
     ``import.json`` report is written, also when the run is interrupted.
     """
 
-    def __init__(self, output: ImportOutputConfig, source: str, provenance: Mapping[str, Any]):
+    def __init__(self, output: OutputConfig, source: str, provenance: Mapping[str, Any]):
         output.check_writable()
         self.output = output
         self.summary = ImportSummary(source)
@@ -286,16 +252,6 @@ class DatasetSink:
         self.close()
 
 
-def parse_cameras(cameras: str) -> tuple[str, ...]:
-    """``"a,b"`` -> ``("a", "b")``; ``ValueError`` if empty or duplicated."""
-    cams = tuple(c.strip() for c in cameras.split(",") if c.strip())
-    if not cams:
-        raise ValueError("no cameras given (--cameras)")
-    if len(set(cams)) != len(cams):
-        raise ValueError(f"duplicate camera names in --cameras={cameras}")
-    return cams
-
-
 def finite_or_error(array: np.ndarray, path: str | Path, episode: str, name: str) -> None:
     """Raise :class:`SourceError` naming the first row of ``array`` with NaN or inf."""
     bad = ~np.isfinite(np.asarray(array, dtype=np.float64)).reshape(len(array), -1).all(axis=1)
@@ -307,10 +263,8 @@ def finite_or_error(array: np.ndarray, path: str | Path, episode: str, name: str
 __all__ = [
     "DatasetSink",
     "EpisodeFailure",
-    "ImportOutputConfig",
     "ImportSummary",
     "SourceError",
     "finite_or_error",
-    "parse_cameras",
     "stored_views",
 ]

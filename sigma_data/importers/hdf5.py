@@ -36,20 +36,19 @@ from typing import Any, Literal
 
 import numpy as np
 
-from sigma_data.cameras import DEFAULT_CAMERAS, CameraRig, RenderConfig, check_cameras
+from sigma_data.cameras import CameraRig, RenderConfig, RenderOptions, check_cameras
 from sigma_data.contract import DENSE_ACTION_DIM, STATE_DIM, implausible_state
 from sigma_data.episode import Episode, Keyframe, gripper_open_from_actions
 from sigma_data.importers import (
     DatasetSink,
-    ImportOutputConfig,
     ImportSummary,
     OutputError,
     SourceError,
     finite_or_error,
-    parse_cameras,
 )
 from sigma_data.importers.model_files import foreign_files
 from sigma_data.keyframes import dedup_by_pose, discover_keyframes
+from sigma_data.output import OutputConfig
 from sigma_data.record import arm_joint_velocities, robot_state
 from sigma_data.writers import DatasetLayout
 
@@ -76,33 +75,24 @@ class Hdf5ImportConfig:
 
     # The robosuite demo.hdf5 or robomimic .hdf5 file.
     path: Path | None = None
-    output: ImportOutputConfig = field(default_factory=ImportOutputConfig)
+    # Where and how the datasets are written.
+    output: OutputConfig = field(default_factory=OutputConfig)
+    # The cameras to render, their image size, the fast exact settings and the depth clip.
+    render: RenderOptions = field(default_factory=RenderOptions)
     # robomimic filter key (mask/<key>, e.g. train, valid); None = every demo.
     filter_key: str | None = None
     # Convert at most this many demos (in numeric order); None = all.
     max_episodes: int | None = None
-    # Cameras to render, comma-separated, and image size in pixels.
-    cameras: str = ",".join(DEFAULT_CAMERAS)
-    height: int = 128
-    width: int = 128
     # The instruction of every demo; None = the sigma task's canonical instruction for the environment.
     instruction: str | None = None
     # Extra keyframe filter: drop a keyframe whose next one has the same gripper state and nearly the same
     # pose (1 cm / 5 deg, docs/robosuite.md §7.2).
     dedup_keyframes: bool = False
-    # Rendering: the fast exact settings (MSAA/reflections/skybox off) and the depth clip, metres.
-    fast_render: bool = True
-    max_depth: float = 3.0
     # Let a demo's MJCF read files outside robosuite's assets (includes, meshes, textures elsewhere). Off: such a
     # demo is refused, since a crafted file could render any readable file into the dataset. Only for your own.
     trust_model_files: bool = False
     # Show a progress bar.
     progress: bool = True
-
-    def render_config(self) -> RenderConfig:
-        return RenderConfig(
-            parse_cameras(self.cameras), self.height, self.width, self.fast_render, self.max_depth
-        )
 
 
 @dataclass
@@ -418,7 +408,7 @@ def _convert_demo(
     """
     from sigma_data.replay_render import RenderedFrames
 
-    render = cfg.render_config()
+    render = cfg.render.config()
     load_demo_model(env, demo, source.path, render.cameras, cfg.trust_model_files)
     ep = replay_episode(
         env,
@@ -442,7 +432,7 @@ def import_hdf5(cfg: Hdf5ImportConfig) -> ImportSummary:
     if cfg.max_episodes is not None and cfg.max_episodes < 1:
         raise ValueError(f"max_episodes must be >= 1, got {cfg.max_episodes}")
     path = Path(cfg.path)
-    render = cfg.render_config()
+    render = cfg.render.config()
     cfg.output.check_writable()
     with open_hdf5(path) as f:
         source = read_source(f, path, cfg.filter_key)

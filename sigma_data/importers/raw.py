@@ -61,18 +61,18 @@ from typing import Any
 
 import numpy as np
 
+from sigma_data.cameras import parse_cameras
 from sigma_data.episode import CameraStream, Episode, Keyframe, canonical_quat
 from sigma_data.importers import (
     DatasetSink,
-    ImportOutputConfig,
     ImportSummary,
     OutputError,
     SourceError,
     finite_or_error,
-    parse_cameras,
     stored_views,
 )
 from sigma_data.keyframes import discover_keyframes
+from sigma_data.output import OutputConfig
 from sigma_data.writers import DatasetLayout
 
 EPISODE_FILE = "episode.json"
@@ -88,8 +88,10 @@ class RawImportConfig:
 
     # A directory of episode directories, or one episode directory (holding episode.json).
     path: Path | None = None
-    output: ImportOutputConfig = field(default_factory=ImportOutputConfig)
-    # Cameras to import, comma-separated; None = every camera of the first episode (cameras/*.json).
+    # Where and how the datasets are written.
+    output: OutputConfig = field(default_factory=OutputConfig)
+    # Stored cameras to import, comma-separated (nothing is rendered); None = every camera of the first episode
+    # (cameras/*.json).
     cameras: str | None = None
     # Convert at most this many episodes (sorted by name); None = all.
     max_episodes: int | None = None
@@ -421,7 +423,7 @@ def import_raw(cfg: RawImportConfig) -> ImportSummary:
     root = Path(cfg.path)
     cfg.output.check_writable()
     dirs = episode_dirs(root)[: cfg.max_episodes]
-    cameras = parse_cameras(cfg.cameras) if cfg.cameras else camera_names(dirs[0])
+    cameras = parse_cameras(cfg.cameras, "--cameras") if cfg.cameras else camera_names(dirs[0])
     provenance = {
         "source": "raw real-robot episodes (sigma_data.importers.raw, docs/raw_format.md)",
         "path": str(root.resolve()),

@@ -46,10 +46,11 @@ from typing import Any, Literal, Protocol, runtime_checkable
 
 import numpy as np
 
-from sigma_data.cameras import CameraRig, RenderConfig
+from sigma_data.cameras import CameraRig, RenderOptions
 from sigma_data.episode import Episode, Keyframe
-from sigma_data.importers import DatasetSink, ImportOutputConfig, ImportSummary, parse_cameras
+from sigma_data.importers import DatasetSink, ImportSummary
 from sigma_data.keyframes import discover_keyframes
+from sigma_data.output import OutputConfig
 from sigma_data.record import EpisodeRecorder
 from sigma_data.writers import DatasetLayout
 
@@ -310,6 +311,14 @@ class TeleopSession:
 
 
 @dataclass
+class TeleopOutputConfig(OutputConfig):
+    """Where and how ``sigma-data import teleop`` writes its datasets."""
+
+    # Where the datasets go.
+    dir: Path = Path("outputs/sigma_teleop")
+
+
+@dataclass
 class TeleopConfig:
     """Options of ``sigma-data import teleop``."""
 
@@ -333,15 +342,10 @@ class TeleopConfig:
     keyframes: str = "manual"
     # Show robosuite's on-screen viewer (needs a display).
     viewer: bool = True
-    # Cameras to render into the datasets, comma-separated.
-    cameras: str = "agentview,frontview,birdview,robot0_eye_in_hand"
-    # Image height in pixels.
-    height: int = 128
-    # Image width in pixels.
-    width: int = 128
-    output: ImportOutputConfig = field(
-        default_factory=lambda: ImportOutputConfig(dir=Path("outputs/sigma_teleop"))
-    )
+    # The cameras rendered into the datasets, their image size, the fast exact settings and the depth clip.
+    render: RenderOptions = field(default_factory=RenderOptions)
+    # Where and how the datasets are written.
+    output: TeleopOutputConfig = field(default_factory=TeleopOutputConfig)
 
     def __post_init__(self) -> None:
         if self.device not in ("keyboard", "spacemouse"):
@@ -368,7 +372,7 @@ def record_teleop(
 
     task = get_task(cfg.task)
     variation = get_variation(task, cfg.variation) if cfg.variation else task.variations[0]
-    render = RenderConfig(parse_cameras(cfg.cameras), cfg.height, cfg.width)
+    render = cfg.render.config()
     cfg.output.check_writable()
     env = make_env(task, cameras=render.cameras, height=render.height, width=render.width)
     on_step = None

@@ -3,7 +3,15 @@
 import numpy as np
 import pytest
 
-from sigma_data.cameras import DEFAULT_CAMERAS, CameraRig, RenderConfig, backproject, fused_cloud
+from sigma_data.cameras import (
+    DEFAULT_CAMERAS,
+    CameraRig,
+    RenderConfig,
+    RenderOptions,
+    backproject,
+    fused_cloud,
+    parse_cameras,
+)
 from sigma_data.record import EpisodeRecorder
 from sigma_data.suite import get_task, make_env, reset_env
 
@@ -94,3 +102,17 @@ def test_fast_settings_and_bad_cameras(scene):
         CameraRig(env, RenderConfig(("agentview", "nope"), SIZE, SIZE))
     with pytest.raises(ValueError, match="image size"):
         CameraRig(env, RenderConfig(("agentview",), 0, SIZE))
+
+
+def test_render_options_give_the_render_config_and_bad_camera_lists_are_named():
+    """``--render.*`` of every rendering command: defaults equal the renderers' and the one camera-list parser
+    names the flag it read."""
+    assert RenderOptions().config() == RenderConfig()
+    options = RenderOptions(cameras=" agentview, robot0_eye_in_hand ,", height=64, fast=False, max_depth=2.0)
+    assert options.config() == RenderConfig(("agentview", "robot0_eye_in_hand"), 64, 128, False, 2.0)
+    with pytest.raises(ValueError, match=r"no cameras given \(--render\.cameras\)"):
+        RenderOptions(cameras=" , ").config()
+    with pytest.raises(ValueError, match=r"duplicate camera names in --render\.cameras=agentview,agentview"):
+        parse_cameras("agentview,agentview")
+    with pytest.raises(ValueError, match=r"no cameras given \(--cameras\)"):
+        parse_cameras("", "--cameras")

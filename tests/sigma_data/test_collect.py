@@ -10,28 +10,38 @@ import shutil
 import subprocess
 import sys
 from dataclasses import replace
+from pathlib import Path
 
+import draccus
 import numpy as np
 import pytest
 from lerobot.datasets.lerobot_dataset import LeRobotDataset
 
+from sigma_data.cameras import RenderOptions
 from sigma_data.cli import main as cli_main
-from sigma_data.collect import MARKER, CollectConfig, check_shard, collect, merge_shards
+from sigma_data.collect import (
+    MARKER,
+    CollectConfig,
+    CollectOutputConfig,
+    check_shard,
+    collect,
+    merge_shards,
+)
 from sigma_data.collect import envs as collect_envs
+from sigma_data.collect.config import recorded_options
 from sigma_data.contract import read_sidecar
 from sigma_data.suite import get_task
 from sigma_data.validate import ValidateConfig, validate_dataset
 
 
-def tiny(out) -> CollectConfig:
+def tiny(out, cameras: str = "agentview,robot0_eye_in_hand", size: int = 32, **output) -> CollectConfig:
+    """Two Lift seeds, one per shard, into ``out``; ``output`` are further ``--output.*`` options."""
     return CollectConfig(
         tasks="lift",
         episodes=2,
         shard_size=1,
-        cameras="agentview,robot0_eye_in_hand",
-        height=32,
-        width=32,
-        output_dir=out,
+        render=RenderOptions(cameras=cameras, height=size, width=size),
+        output=CollectOutputConfig(dir=out, **output),
         progress=False,
     )
 
@@ -233,10 +243,10 @@ def test_existing_data_is_never_replaced_without_overwrite(first_run, tmp_path, 
 
     out, _ = first_run
     before = {p: p.stat().st_mtime_ns for p in out.rglob("*")}
-    code = cli_main(["collect", *_args(replace(tiny(out), episodes=1, height=48, width=48))])
+    code = cli_main(["collect", *_args(replace(tiny(out, size=48), episodes=1))])
     assert code != 0
     err = capsys.readouterr().err
-    assert "other options (episodes 2 -> 1, height 32 -> 48, width 32 -> 48)" in err
+    assert "other options (episodes 2 -> 1, render.height 32 -> 48, render.width 32 -> 48)" in err
     assert {p: p.stat().st_mtime_ns for p in out.rglob("*")} == before  # nothing touched
     # Changing only how it runs resumes: every shard reused, the merged datasets swapped in whole.
     again = collect(replace(tiny(out), render_threads=1))
@@ -245,11 +255,89 @@ def test_existing_data_is_never_replaced_without_overwrite(first_run, tmp_path, 
 
     copy = tmp_path / "copy"
     shutil.copytree(out, copy)
-    one = collect(replace(tiny(copy), episodes=1, overwrite=True))
+    one = collect(replace(tiny(copy, overwrite=True), episodes=1))
     assert (
         one.kept == 1
         and LeRobotDataset("local/c", root=copy / "dense", video_backend="pyav").num_episodes == 1
     )
+
+
+# tiny()'s options as collect.json recorded them before the render and output options were grouped under
+# --render.* and --output.* (flat names; what the flat CollectConfig's data_options() gave).
+OLD_RECORD = {
+    "tasks": "lift",
+    "variations": "all",
+    "episodes": "2",
+    "start_seed": "0",
+    "repo_id": "local/sigma",
+    "cameras": "agentview,robot0_eye_in_hand",
+    "height": "32",
+    "width": "32",
+    "dense": "True",
+    "keyframe": "True",
+    "dense_depth": "True",
+    "dense_video": "True",
+    "keyframe_video": "False",
+    "augment_every": "0",
+    "fast_render": "True",
+    "max_depth": "3.0",
+    "shard_size": "1",
+    "model_seed": "0",
+}
+
+
+def test_grouped_options_keep_the_fingerprint_and_read_old_records(tmp_path):
+    """Shards written before the options were grouped keep matching: the fingerprints below were computed with
+    the flat CollectConfig; an old collect.json's names map onto today's."""
+    assert CollectConfig().fingerprint() == "30aecf5f1d7572ea"
+    small = CollectConfig(render=RenderOptions(height=64, width=64), output=CollectOutputConfig(dense=False))
+    assert small.fingerprint() == "04f8d5a39ba02d3f"
+    other = CollectConfig(
+        render=RenderOptions(cameras="agentview,frontview", fast=False, max_depth=2.5),
+        output=CollectOutputConfig(augment_every=3),
+        model_seed=7,
+    )
+    assert other.fingerprint() == "5bc3e9ded696d97f"
+    cfg = tiny(tmp_path)
+    assert cfg.fingerprint() == "f1966cf0f0b21e97"
+    # How a run goes (where, with how many workers...) is neither fingerprinted nor compared between runs.
+    run = replace(cfg, output=replace(cfg.output, dir=tmp_path / "elsewhere", overwrite=True), workers=3)
+    assert run.fingerprint() == cfg.fingerprint() and run.data_options() == cfg.data_options()
+    mine = cfg.data_options()
+    assert mine["render.height"] == "32" and mine["output.dense"] == "True" and "output.dir" not in mine
+    assert recorded_options(OLD_RECORD) == mine
+    assert recorded_options(mine) == mine
+
+
+def test_an_output_option_on_the_command_line_keeps_collects_output_defaults():
+    """draccus builds a sub-config from its class's defaults once one of its options is given: collect's own
+    defaults (its own class) stay, so a rerun with ``--output.dense=false`` still has the repo_id it recorded."""
+    cfg = draccus.parse(CollectConfig, args=["--output.dense=false", "--render.height=64"])
+    assert cfg.output == CollectOutputConfig(dense=False) and cfg.render == RenderOptions(height=64)
+    assert (cfg.output.dir, cfg.output.repo_id) == (Path("outputs/sigma_data"), "local/sigma")
+    assert cfg.fingerprint() == replace(cfg, output=CollectOutputConfig(dense=False)).fingerprint()
+
+
+def _with_old_record(run):
+    record = json.loads((run / "collect.json").read_text())
+    record["config"] = dict(OLD_RECORD)
+    (run / "collect.json").write_text(json.dumps(record, indent=1))
+    return run
+
+
+def test_a_collection_recorded_with_the_old_option_names_resumes(first_run, tmp_path):
+    """A collection whose collect.json has the flat option names of before resumes: every shard reused, the record
+    rewritten with today's names; other options than it records are still refused, named by today's names."""
+    out, summary = first_run
+    old = _with_old_record(_copy_run(out, tmp_path / "old"))
+    again = collect(tiny(old))
+    assert all(s.skipped for s in again.shards) and again.kept == summary.kept
+    assert json.loads((old / "collect.json").read_text())["config"] == tiny(old).data_options()
+    other = _with_old_record(_copy_run(out, tmp_path / "other"))
+    with pytest.raises(
+        FileExistsError, match=r"other options \(render\.height 32 -> 48, render\.width 32 -> 48\)"
+    ):
+        collect(tiny(other, size=48))
 
 
 def _args(cfg: CollectConfig) -> list[str]:
@@ -257,10 +345,10 @@ def _args(cfg: CollectConfig) -> list[str]:
         f"--tasks={cfg.tasks}",
         f"--episodes={cfg.episodes}",
         f"--shard_size={cfg.shard_size}",
-        f"--cameras={cfg.cameras}",
-        f"--height={cfg.height}",
-        f"--width={cfg.width}",
-        f"--output_dir={cfg.output_dir}",
+        f"--render.cameras={cfg.render.cameras}",
+        f"--render.height={cfg.render.height}",
+        f"--render.width={cfg.render.width}",
+        f"--output.dir={cfg.output.dir}",
         "--progress=false",
     ]
 
@@ -276,12 +364,12 @@ def test_two_workers_share_the_shards_and_give_the_same_data(first_run, tmp_path
     for name in names:
         np.testing.assert_array_equal(a[name], b[name], err_msg=name)
     with pytest.raises(ValueError, match=r"unknown camera\(s\) \['nocam'\]"):
-        collect(replace(tiny(tmp_path / "bad"), workers=2, cameras="agentview,nocam"))
+        collect(replace(tiny(tmp_path / "bad", cameras="agentview,nocam"), workers=2))
 
 
 def test_single_shard_is_copied_and_reads_back(tmp_path):
     """One shard is the merged dataset already (copied, not re-aggregated); the process's envs are closed after."""
-    summary = collect(replace(tiny(tmp_path), episodes=1, dense=False))
+    summary = collect(replace(tiny(tmp_path, dense=False), episodes=1))
     assert len(summary.shards) == 1 and summary.kept == 1 and set(summary.outputs) == {"keyframe"}
     ds, cols = columns(tmp_path / "keyframe", ["episode_index", "action"])
     assert ds.meta.total_episodes == 1 and len(ds) == summary.frames("keyframe") == len(cols["action"])
@@ -299,8 +387,8 @@ def test_bad_names_give_clear_errors(tmp_path):
     with pytest.raises(ValueError, match="unknown variation"):
         collect(replace(tiny(tmp_path), variations="red_on_green"))
     with pytest.raises(ValueError, match=r"unknown camera\(s\) \['nocam'\] for task 'lift'"):
-        collect(replace(tiny(tmp_path), cameras="agentview,nocam"))
-    assert cli_main(["collect", "--tasks=lfit", f"--output_dir={tmp_path}"]) == 1
+        collect(tiny(tmp_path, cameras="agentview,nocam"))
+    assert cli_main(["collect", "--tasks=lfit", f"--output.dir={tmp_path}"]) == 1
     assert cli_main(["frobnicate"]) == 2
     with pytest.raises(ValueError, match="render_threads"):
         replace(tiny(tmp_path), render_threads=-1)
@@ -329,8 +417,8 @@ def test_cli_output_is_the_summary_line_only(tmp_path):
     once per process."""
     env = {k: v for k, v in os.environ.items() if k != "SVT_LOG"}
     proc = subprocess.run(
-        [sys.executable, "-m", "sigma_data.cli", "collect", "--tasks=lift", "--episodes=1", "--height=32",
-         "--width=32", "--cameras=agentview", f"--output_dir={tmp_path}", "--progress=false"],
+        [sys.executable, "-m", "sigma_data.cli", "collect", "--tasks=lift", "--episodes=1", "--render.height=32",
+         "--render.width=32", "--render.cameras=agentview", f"--output.dir={tmp_path}", "--progress=false"],
         capture_output=True, text=True, env=env, timeout=600,
     )  # fmt: skip
     assert proc.returncode == 0, proc.stderr[-3000:]

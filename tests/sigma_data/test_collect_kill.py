@@ -11,7 +11,8 @@ from pathlib import Path
 
 import psutil
 
-from sigma_data.collect import MARKER, CollectConfig, ShardSpec, check_shard
+from sigma_data.cameras import RenderOptions
+from sigma_data.collect import MARKER, CollectConfig, CollectOutputConfig, ShardSpec, check_shard
 
 
 def test_killing_the_parent_ends_its_helpers(tmp_path):
@@ -19,10 +20,15 @@ def test_killing_the_parent_ends_its_helpers(tmp_path):
     script = Path(sys.executable).with_name("sigma-data")
     cmd = [str(script)] if script.exists() else [sys.executable, "-m", "sigma_data.cli"]
     cfg = CollectConfig(
-        tasks="lift", episodes=4, shard_size=1, cameras="agentview", height=32, width=32, output_dir=out
+        tasks="lift",
+        episodes=4,
+        shard_size=1,
+        render=RenderOptions(cameras="agentview", height=32, width=32),
+        output=CollectOutputConfig(dir=out),
     )
-    args = ["collect", "--tasks=lift", "--episodes=4", "--shard_size=1", "--cameras=agentview", "--height=32",
-            "--width=32", "--workers=2", f"--output_dir={out}", "--progress=false"]  # fmt: skip
+    args = ["collect", "--tasks=lift", "--episodes=4", "--shard_size=1", "--render.cameras=agentview",
+            "--render.height=32", "--render.width=32", "--workers=2", f"--output.dir={out}",
+            "--progress=false"]  # fmt: skip
     # The helper takes shards from the front (this process from the back): once the first shard's directory
     # exists, the helper is writing it.
     helper_shard = out / "shards" / ShardSpec("lift", "lift_cube", (0,)).name

@@ -16,11 +16,13 @@ from robosuite.controllers import load_composite_controller_config
 from robosuite.scripts.collect_human_demonstrations import gather_demonstrations_as_hdf5
 from robosuite.wrappers import DataCollectionWrapper
 
+from sigma_data.cameras import RenderOptions
 from sigma_data.cli import main as cli_main
 from sigma_data.control import EnvDriver
-from sigma_data.importers import REPORT, ImportOutputConfig, SourceError
+from sigma_data.importers import REPORT, SourceError
 from sigma_data.importers.hdf5 import Hdf5ImportConfig, import_hdf5
 from sigma_data.importers.model_files import foreign_files
+from sigma_data.output import OutputConfig
 from sigma_data.suite import get_task, make_env, reset_env
 from sigma_data.validate import ValidateConfig, validate_dataset
 
@@ -113,10 +115,9 @@ def robosuite_demos(path: Path) -> list[dict]:
 
 
 def hdf5_config(path: Path, out: Path, **kw) -> Hdf5ImportConfig:
-    output = kw.pop("output", ImportOutputConfig(dir=out, dense_video=False))
-    return Hdf5ImportConfig(
-        path=path, output=output, cameras=CAMERAS, height=32, width=32, progress=False, **kw
-    )
+    output = kw.pop("output", OutputConfig(dir=out, dense_video=False))
+    render = RenderOptions(cameras=CAMERAS, height=32, width=32)
+    return Hdf5ImportConfig(path=path, output=output, render=render, progress=False, **kw)
 
 
 def assert_valid(root: Path) -> LeRobotDataset:
@@ -128,7 +129,7 @@ def assert_valid(root: Path) -> LeRobotDataset:
 def test_robosuite_demo_hdf5_imports_by_state_replay(robosuite_hdf5, tmp_path):
     path, tracks = robosuite_hdf5
     out = tmp_path / "out"
-    output = ImportOutputConfig(dir=out)  # default storage: video dense, image keyframe
+    output = OutputConfig(dir=out)  # default storage: video dense, image keyframe
     summary = import_hdf5(hdf5_config(path, out, output=output))
     assert summary.converted == 2 and not summary.failed, summary.failed
     dense = assert_valid(out / "dense")

@@ -10,8 +10,9 @@ import pytest
 from lerobot.datasets.lerobot_dataset import LeRobotDataset
 
 from sigma_data.cli import main as cli_main
-from sigma_data.importers import REPORT, ImportOutputConfig, SourceError
+from sigma_data.importers import REPORT, SourceError
 from sigma_data.importers.raw import RawImportConfig, import_raw, read_episode
+from sigma_data.output import OutputConfig
 from sigma_data.validate import ValidateConfig, validate_dataset
 
 H, W = 24, 32
@@ -81,8 +82,8 @@ def write_episode(root: Path, name: str, marks: bool = True, joints: bool = Fals
     return ep
 
 
-def out_config(out: Path, **kw) -> ImportOutputConfig:
-    return ImportOutputConfig(dir=out, dense_video=False, **kw)
+def out_config(out: Path, **kw) -> OutputConfig:
+    return OutputConfig(dir=out, dense_video=False, **kw)
 
 
 @pytest.fixture(scope="module")

@@ -1,11 +1,13 @@
 """Teleoperation driven headless by a scripted device: manual keyframe marks, reset, discard and keep; the kept
 episode lands in datasets that pass validation and load in stock LeRobot."""
 
+from pathlib import Path
+
 import numpy as np
 import pytest
 from lerobot.datasets.lerobot_dataset import LeRobotDataset
 
-from sigma_data.importers import ImportOutputConfig
+from sigma_data.cameras import RenderOptions
 from sigma_data.importers.teleop import (
     EventSource,
     ScriptedDevice,
@@ -18,6 +20,7 @@ from sigma_data.importers.teleop import (
     record_teleop,
     teleop_keyframes,
 )
+from sigma_data.output import OutputConfig
 from sigma_data.validate import ValidateConfig, validate_dataset
 
 DOWN_OPEN = (0.0, 0.0, -0.3, 0.0, 0.0, 0.0, -1.0)
@@ -57,10 +60,8 @@ def test_scripted_session_marks_resets_discards_and_keeps(tmp_path):
         task="lift",
         episodes=5,
         viewer=False,
-        cameras="agentview,robot0_eye_in_hand",
-        height=32,
-        width=32,
-        output=ImportOutputConfig(dir=out, dense_video=False),
+        render=RenderOptions(cameras="agentview,robot0_eye_in_hand", height=32, width=32),
+        output=OutputConfig(dir=out, dense_video=False),
     )
     summary, outcomes = record_teleop(cfg, device=device, events=device)
     assert [(o.kind, o.seed, o.steps) for o in outcomes] == [
@@ -105,3 +106,12 @@ def test_keyframe_modes_and_device_actions():
     np.testing.assert_allclose(a, [1.0, 0, 0, 0, 0, -0.5, 1.0])
     with pytest.raises(ValueError, match="right_gripper"):
         device_action({"right_delta": np.zeros(6)})
+
+
+def test_an_output_option_on_the_command_line_keeps_teleops_output_dir():
+    """One ``--output.*`` option leaves the others at teleop's defaults (not the importers')."""
+    import draccus
+
+    cfg = draccus.parse(TeleopConfig, args=["--output.dense_video=false", "--render.cameras=agentview"])
+    assert cfg.output.dir == Path("outputs/sigma_teleop") and not cfg.output.dense_video
+    assert cfg.render.config().cameras == ("agentview",) and cfg.render.height == 128

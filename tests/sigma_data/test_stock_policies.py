@@ -1,7 +1,7 @@
 """Stock LeRobot policies on sigma's data and env, with no hand edits: a dense dataset collected with
-``--dense_depth=false`` trains stock ACT with the stock ``lerobot-train``, and the stock ``lerobot-eval`` runs the
-checkpoint in the dense control mode of ``--env.type=sigma_robosuite`` (tiny budget: this proves the plumbing,
-not the policy; ``benchmarks/bench_policies.py`` measures success)."""
+``--output.dense_depth=false`` trains stock ACT with the stock ``lerobot-train``, and the stock ``lerobot-eval``
+runs the checkpoint in the dense control mode of ``--env.type=sigma_robosuite`` (tiny budget: this proves the
+plumbing, not the policy; ``benchmarks/bench_policies.py`` measures success)."""
 
 from __future__ import annotations
 
@@ -34,12 +34,12 @@ def test_stock_act_trains_on_a_fresh_dense_dataset_and_evaluates_in_dense_mode(t
         "collect",
         "--tasks=lift",
         "--episodes=1",
-        "--height=32",
-        "--width=32",
-        "--cameras=agentview,robot0_eye_in_hand",
-        "--keyframe=false",
-        "--dense_depth=false",
-        f"--output_dir={data}",
+        "--render.height=32",
+        "--render.width=32",
+        "--render.cameras=agentview,robot0_eye_in_hand",
+        "--output.keyframe=false",
+        "--output.dense_depth=false",
+        f"--output.dir={data}",
         "--progress=false",
     )
     run = tmp_path / "act"

@@ -62,7 +62,7 @@ def test_state_continuity_names_the_frame_in_its_episode(tmp_path):
 
 
 def test_rgb_only_dense_dataset_passes(tmp_path):
-    """A dense dataset without depth (``sigma-data collect --dense_depth=false``, for stock image policies)."""
+    """A dense dataset without depth (``sigma-data collect --output.dense_depth=false``, for stock image policies)."""
     root = write_dataset(tmp_path / "rgb", "dense", Defects(no_depth=True))
     report = validate_dataset(ValidateConfig(root=root))
     assert report.num_errors == 0, report.table()

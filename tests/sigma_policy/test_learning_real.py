@@ -18,19 +18,16 @@ CAMERAS = "agentview,frontview,birdview,robot0_eye_in_hand"
 
 
 def _collect_lift(out, episodes: int, start_seed: int):
-    from sigma_data.collect import CollectConfig, collect
+    from sigma_data.cameras import RenderOptions
+    from sigma_data.collect import CollectConfig, CollectOutputConfig, collect
 
     summary = collect(
         CollectConfig(
             tasks="lift",
             episodes=episodes,
             start_seed=start_seed,
-            output_dir=out,
-            repo_id=f"local/{out.name}",
-            cameras=CAMERAS,
-            height=64,
-            width=64,
-            dense=False,
+            output=CollectOutputConfig(dir=out, repo_id=f"local/{out.name}", dense=False),
+            render=RenderOptions(cameras=CAMERAS, height=64, width=64),
             workers=1,
             progress=False,
         )

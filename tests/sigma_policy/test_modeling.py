@@ -15,6 +15,7 @@ from lerobot.policies.factory import make_policy, make_pre_post_processors
 
 from sigma_policy.configuration_sigma import SigmaConfig
 from sigma_policy.modeling_sigma import SigmaPolicy
+from sigma_policy.pointcloud import world_to_cube
 from tests.sigma_policy.tiny_dataset import BOUNDS, write_tiny_keyframe_dataset
 
 FAST = {"preset": "small", "img_size": 32, "patch_size": 8, "attn_dim": 64, "attn_heads": 2}
@@ -337,3 +338,40 @@ def test_augmented_target_lands_on_the_augmented_cube_inside_forward(tiny_root, 
         col, row = (uv[k, 0].floor().long().clamp(0, size - 1)).tolist()
         r, g, b = top[k, :, row, col].tolist()
         assert r > 0.5 and g < 0.3 and b < 0.3, (k, (row, col), (r, g, b))
+
+
+def test_checkpoint_saved_before_proprio_position_loads_with_its_gripper_only_token(
+    tiny_root, tmp_path, caplog
+):
+    import json
+
+    _, policy, pre, _, _ = build(tiny_root, use_proprio=True, proprio_position=False)
+    policy.eval()
+    obs = single_observation(tiny_root, 4)
+    before = policy.select_action(pre(dict(obs)))
+    policy.save_pretrained(tmp_path)
+    config = json.loads((tmp_path / "config.json").read_text())
+    del config["proprio_position"]  # as written before the field existed; the small preset now turns it on
+    (tmp_path / "config.json").write_text(json.dumps(config))
+    with caplog.at_level("WARNING"):
+        loaded = SigmaPolicy.from_pretrained(tmp_path)
+    assert "gripper-only proprio token" in caplog.text and loaded.config.proprio_position is False
+    torch.testing.assert_close(loaded.select_action(pre(dict(obs))), before)
+
+
+def test_proprio_position_is_the_grip_site_in_the_box_moved_like_the_cloud(tiny_root):
+    """The proprio token gets the grip site's box coordinates; under augmentation the same rigid transform as the
+    cloud and the target moves it, so position and images agree."""
+    _, policy, pre, _, ds = build(tiny_root, use_proprio=True, proprio_position=True)
+    batch = pre(training_batch(ds, [0, 1]))
+    state = batch["observation.state"][:, 0].float()
+    plain = policy._proprio(batch, None)
+    assert plain.shape == (2, 6)
+    torch.testing.assert_close(plain[:, :3], state[:, 7:10])
+    torch.testing.assert_close(plain[:, 3:], world_to_cube(state[:, :3], policy.scene_bounds))
+    shift = torch.eye(4).repeat(2, 1, 1)
+    shift[:, :3, 3] = torch.tensor([0.05, -0.02, 0.01])
+    moved = policy._proprio(batch, shift)
+    torch.testing.assert_close(
+        moved[:, 3:], world_to_cube(state[:, :3] + shift[:, :3, 3], policy.scene_bounds)
+    )

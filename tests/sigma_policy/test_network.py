@@ -35,7 +35,7 @@ def inputs(cfg: NetworkConfig, b: int = 2, lang_len: int = 6, lang_dim: int = 12
 
 
 def test_paper_parameter_count_matches_the_paper_within_one_percent():
-    # CLIP token / sentence width 512 as in Σ-agent; model_spec §3.4 gives 38,259,614 and 36.03 M.
+    # CLIP token / sentence width 512 as in Σ-agent; docs/method.md §5.6 gives 38,259,614 and 36.03 M.
     net = SigmaNetwork(NetworkConfig(), lang_token_dim=512, lang_sentence_dim=512)
     total, inference = net.num_parameters(), net.num_parameters(inference_only=True)
     assert abs(total - 38.26e6) / 38.26e6 < 0.01, total
