@@ -11,7 +11,7 @@ import time
 from dataclasses import asdict
 from pathlib import Path
 
-from sigma_data.collect.config import RECORD, CollectConfig, CollectSummary, ShardResult, ShardSpec
+from sigma_data.collect.config import MARKER, RECORD, CollectConfig, CollectSummary, ShardResult, ShardSpec
 from sigma_data.collect.envs import check_cameras_exist, close_envs
 from sigma_data.collect.merge import merge_shards
 from sigma_data.collect.planning import check_shard, claim_output_dir, plan_shards
@@ -50,13 +50,33 @@ def _reusable(
 
 def collect(cfg: CollectConfig) -> CollectSummary:
     """Run (or resume) a collection and merge the shards. Returns per-shard results and output roots."""
-    from tqdm import tqdm
 
     start = time.perf_counter()
     shards = plan_shards(cfg)
     out = Path(cfg.output.dir)
     shards_dir = out / "shards"
+    fresh = not out.exists() or not any(out.iterdir())
     claim_output_dir(cfg)
+    try:
+        return _collect(cfg, shards, out, shards_dir, start)
+    except BaseException:
+        if fresh and not any(shards_dir.glob(f"*/{MARKER}")):
+            _forget(out)  # rejected before any shard finished (unknown camera...): leave no trace
+        raise
+
+
+def _forget(out: Path) -> None:
+    """Remove what :func:`claim_output_dir` and the run put into a directory that was empty before it."""
+    (out / RECORD).unlink(missing_ok=True)
+    shutil.rmtree(out / "shards", ignore_errors=True)
+    if out.is_dir() and not any(out.iterdir()):
+        out.rmdir()
+
+
+def _collect(
+    cfg: CollectConfig, shards: list[ShardSpec], out: Path, shards_dir: Path, start: float
+) -> CollectSummary:
+    from tqdm import tqdm
 
     done, redo = _reusable(shards, shards_dir, cfg)
     todo = [s for s in shards if s.name not in done]

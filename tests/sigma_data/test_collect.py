@@ -365,6 +365,7 @@ def test_two_workers_share_the_shards_and_give_the_same_data(first_run, tmp_path
         np.testing.assert_array_equal(a[name], b[name], err_msg=name)
     with pytest.raises(ValueError, match=r"unknown camera\(s\) \['nocam'\]"):
         collect(replace(tiny(tmp_path / "bad", cameras="agentview,nocam"), workers=2))
+    assert not (tmp_path / "bad").exists()  # a rejected run leaves no collect.json or empty shards/ behind
 
 
 def test_single_shard_is_copied_and_reads_back(tmp_path):
