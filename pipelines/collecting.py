@@ -15,10 +15,11 @@ def collect_demonstrations(
     image_size: int,
     workers: int,
     repo_id: str,
+    start_seed: int = 0,
     **output: Any,
 ) -> dict[str, Path]:
-    """Collect ``episodes`` seeds per variation of ``tasks``; ``output`` are further ``--output.*`` fields
-    (``dense=False``, ``dense_depth=False``...). Returns the written datasets by kind."""
+    """Collect ``episodes`` seeds per variation of ``tasks`` (from ``start_seed``); ``output`` are further
+    ``--output.*`` fields (``dense=False``, ``dense_depth=False``...). Returns the written datasets by kind."""
     from sigma_data.cameras import RenderOptions
     from sigma_data.collect import CollectConfig, CollectOutputConfig, collect
 
@@ -26,6 +27,7 @@ def collect_demonstrations(
         CollectConfig(
             tasks=",".join(tasks),
             episodes=episodes,
+            start_seed=start_seed,
             output=CollectOutputConfig(dir=Path(output_dir) / "data", repo_id=repo_id, **output),
             render=RenderOptions(cameras=",".join(cameras), height=image_size, width=image_size),
             workers=workers,

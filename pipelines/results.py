@@ -3,13 +3,15 @@
 Every benchmark writes a Markdown fragment (with the exact command and the machine) and a JSON file of raw
 numbers to ``benchmarks/results/<name>.*`` (:func:`pipelines.reporting.write_report`). This command runs the
 chosen benchmarks one after the other as subprocesses from the repository root, then stitches the fragments, in
-a fixed order (experts, ablation, compare, learning, collect, loader, renderer, policy), under a short header into ``RESULTS.md``.
+a fixed order (experts, ablation, compare, learning, demos, collect, loader, renderer, policy), under a short
+header into ``RESULTS.md``.
 A fragment that does not exist yet is shown as "not measured yet" with the command that produces it, never
 silently dropped; a benchmark that fails is reported with its exit status and command, and the others still run.
 Numbers come only from those runs.
 
     sigma-results                                  # collect, loader, renderer, policy (~30 min on 2 CPU cores)
-    sigma-results --include_slow true              # also experts (~45 min), learning (~45 min), ablation (~1 h), compare (~50 min)
+    sigma-results --include_slow true              # also experts (~45 min), learning (~45 min), demos (~50 min),
+                                                   # ablation (~1 h), compare (~50 min)
     sigma-results --stitch_only true               # run nothing, only rebuild RESULTS.md
     sigma-results --only loader,policy             # comma-separated names (also --skip)
     sigma-results --only loader --extra_args '{"loader": "--samples 5"}'   # flags appended to a command
@@ -75,6 +77,14 @@ BENCHMARKS: tuple[Benchmark, ...] = (
         "python -m benchmarks.bench_learning",
         slow=True,
     ),
+    # ~50 min: 3 lerobot-train runs of 1500 steps (10, 30, 100 demonstrations per variation of Lift + Stack),
+    # each diagnosed and evaluated closed loop (30 episodes per variation).
+    Benchmark(
+        "demos",
+        "Success against demonstrations per variation (small preset, make-demo budget)",
+        "python -m benchmarks.bench_demos",
+        slow=True,
+    ),
     # Times: measured on the project's 2-core machine while it was busy with training runs (quiet: less).
     # collect ~20 min (the robosuite-camera baseline alone ~25 s per episode).
     Benchmark(
@@ -108,8 +118,8 @@ NAMES = tuple(b.name for b in BENCHMARKS)
 class ResultsConfig:
     """Options of ``sigma-results``."""
 
-    # Run only these benchmarks, comma-separated (experts, ablation, learning, collect, loader, renderer, policy);
-    # "" = all fast ones (plus the slow ones with --include_slow true).
+    # Run only these benchmarks, comma-separated (experts, ablation, compare, learning, demos, collect, loader,
+    # renderer, policy); "" = all fast ones (plus the slow ones with --include_slow true).
     only: str = ""
     # Never run these, comma-separated.
     skip: str = ""

@@ -9,9 +9,10 @@ work in the calling thread (LeRobot's ``add_frame``, the video encoders' threads
 :class:`ReplayRenderer` keeps ``threads`` threads; each owns a GL context (``mujoco.GLContext``: the ``MUJOCO_GL``
 backend), an ``MjData``, a scene and an ``MjrContext`` on the env's model, with the render options of the env's
 offscreen context as :class:`~sigma_data.cameras.CameraRig` set them (fast settings or robosuite's): its images
-are bit for bit those of ``CameraRig.render_state`` (a test). The model is shared read-only; mocap poses are
-copied with the model when an episode's frames are queued (:meth:`ReplayRenderer.snapshot`), so the env may
-reset for the next episode (which moves Door's frame) while they render.
+are bit for bit those of ``CameraRig.render_state`` in the test's frames (a rare frame can differ in a few depth
+pixels by a unit or two: ``docs/robosuite.md`` §2). The model is shared read-only; mocap poses are
+copied with the model when an episode's frames are queued (:meth:`ReplayRenderer.snapshot`), so the env may reset
+for the next episode (which moves Door's frame) while they render.
 
 :class:`RenderedFrames` is what writers read an episode's frames from, with or without a :class:`ReplayRenderer`.
 """

@@ -6,6 +6,7 @@ whole; an error names the shards it was merging (and, where their markers tell, 
 from __future__ import annotations
 
 import contextlib
+import functools
 import json
 import shutil
 from pathlib import Path
@@ -59,6 +60,27 @@ def _datasets_bars_stay_off():
         SuppressProgressBars.__exit__ = original
 
 
+@contextlib.contextmanager
+def _aggregate_bars(enabled: bool):
+    """LeRobot's own merge bars ("Validate all meta data", "Copy data and videos") on or off: ``aggregate`` calls
+    ``tqdm.tqdm`` through its module attribute ``tqdm``, swapped for the call and restored."""
+    from lerobot.datasets import aggregate
+
+    if enabled:
+        yield
+        return
+    import types
+
+    import tqdm
+
+    original = aggregate.tqdm
+    aggregate.tqdm = types.SimpleNamespace(tqdm=functools.partial(tqdm.tqdm, disable=True))
+    try:
+        yield
+    finally:
+        aggregate.tqdm = original
+
+
 def _blame(kind: str, shard_roots: list[Path]) -> str:
     """Which of the shards being merged is damaged, as far as their markers' file lists tell; else all of them."""
     damaged = []
@@ -75,11 +97,11 @@ def _blame(kind: str, shard_roots: list[Path]) -> str:
     return "shards being merged: " + ", ".join(str(r.parent) for r in shard_roots)
 
 
-def merge_shards(kind: str, shard_roots: list[Path], out: Path, repo_id: str) -> None:
-    """Merge shard datasets of one kind with LeRobot's ``aggregate_datasets`` and merge their sidecars. An
-    error is raised as a ``RuntimeError`` naming the shard directories involved."""
+def merge_shards(kind: str, shard_roots: list[Path], out: Path, repo_id: str, progress: bool = True) -> None:
+    """Merge shard datasets of one kind with LeRobot's ``aggregate_datasets`` and merge their sidecars (LeRobot's
+    bars only with ``progress``). An error is raised as a ``RuntimeError`` naming the shard directories involved."""
     try:
-        _merge(shard_roots, out, repo_id)
+        _merge(shard_roots, out, repo_id, progress)
     except Exception as exc:
         raise RuntimeError(
             f"merging {len(shard_roots)} {kind} shard dataset(s) into {out} failed: {type(exc).__name__}: "
@@ -88,7 +110,7 @@ def merge_shards(kind: str, shard_roots: list[Path], out: Path, repo_id: str) ->
         ) from exc
 
 
-def _merge(shard_roots: list[Path], out: Path, repo_id: str) -> None:
+def _merge(shard_roots: list[Path], out: Path, repo_id: str, progress: bool) -> None:
     from lerobot.datasets.aggregate import aggregate_datasets
     from lerobot.datasets.io_utils import load_info
 
@@ -101,8 +123,8 @@ def _merge(shard_roots: list[Path], out: Path, repo_id: str) -> None:
         shutil.copytree(shard_roots[0], out)
     else:
         features = load_info(shard_roots[0]).features  # shapes as tuples, as LeRobot's metadata gives them
-        # LeRobot's own "Copy data and videos" bar stays (one for the merge); the per-file bars go.
-        with _typed_parquet_writes(features), _datasets_bars_stay_off():
+        # LeRobot's own "Copy data and videos" bar stays with progress (one for the merge); per-file bars go.
+        with _typed_parquet_writes(features), _datasets_bars_stay_off(), _aggregate_bars(progress):
             aggregate_datasets(
                 repo_ids=[repo_id] * len(shard_roots),
                 aggr_repo_id=repo_id,

@@ -110,7 +110,7 @@ def _collect(
             if not roots:
                 shutil.rmtree(target, ignore_errors=True)
                 continue
-            merge_shards(kind, roots, target, f"{cfg.output.repo_id}_{kind}")
+            merge_shards(kind, roots, target, f"{cfg.output.repo_id}_{kind}", progress=cfg.progress)
             outputs[kind] = target
     finally:
         if helpers is not None:

@@ -2,21 +2,18 @@
 (:class:`Helpers`, :func:`_run_processes`).
 
 Each shard is written by one process; a process builds one env per task and reuses it for all its shards
-(:mod:`sigma_data.collect.envs`). Helpers never outlive this process: each watches its parent and exits at once
-when it dies (a killed ``sigma-data collect`` used to leave its helpers collecting, and a multiprocessing
-Manager serving, on their own). A shard a helper was writing then has no marker and the next run redoes it.
+(:mod:`sigma_data.collect.envs`). Helpers never outlive this process
+(:mod:`sigma_data.collect.lifetime`): a shard a helper was writing when it died has no marker and the next run
+redoes it.
 """
 
 from __future__ import annotations
 
 import contextlib
-import ctypes
 import multiprocessing as mp
 import os
 import queue
-import signal
 import threading
-import time
 from collections import deque
 from collections.abc import Callable
 from concurrent.futures import ProcessPoolExecutor
@@ -26,33 +23,11 @@ from typing import Any
 from sigma_data.cameras import RenderConfig
 from sigma_data.collect.config import CollectConfig, ShardResult, ShardSpec
 from sigma_data.collect.envs import cached_env, check_cameras_exist
+from sigma_data.collect.lifetime import exit_with_parent
 from sigma_data.collect.shard import collect_shard
 
-# How often a helper checks that its parent is alive (seconds).
-PARENT_POLL_S = 1.0
-_PR_SET_PDEATHSIG = 1  # linux/prctl.h
 # A helper's end of the progress queue (one item per episode done), set by its initializer.
 _PROGRESS: Any = None
-
-
-def _exit_with_parent(parent: int) -> None:
-    """End this process as soon as ``parent`` is no longer its parent, however the parent died.
-
-    On Linux the kernel sends it SIGKILL when the parent dies (``PR_SET_PDEATHSIG``: immediate, needs no Python
-    thread to run; a polling thread alone was seen to let a helper finish its shard 2 s after its parent was
-    killed). The helpers are spawned by the thread that runs the collection, which outlives them. A watcher thread backs this up where ``prctl`` is
-    missing and covers a parent that died before it was set: a process whose parent dies is reparented (to init
-    or a subreaper), so a changed ``os.getppid()`` means the parent is gone; it then leaves with ``os._exit``,
-    without cleanup that could wait on the dead parent."""
-    with contextlib.suppress(Exception):
-        ctypes.CDLL(None).prctl(_PR_SET_PDEATHSIG, signal.SIGKILL)  # libc's, linked into the interpreter
-
-    def watch() -> None:
-        while os.getppid() == parent:
-            time.sleep(PARENT_POLL_S)
-        os._exit(1)
-
-    threading.Thread(target=watch, name="sigma-parent-watch", daemon=True).start()
 
 
 def _warm_up(parent: int, progress: Any, task_name: str, render: RenderConfig, model_seed: int) -> None:
@@ -60,7 +35,7 @@ def _warm_up(parent: int, progress: Any, task_name: str, render: RenderConfig, m
     its first shard needs (seconds that would otherwise be spent inside that shard). A failure of the imports or
     the env is left for the shard itself to report."""
     global _PROGRESS
-    _exit_with_parent(parent)
+    exit_with_parent(parent)
     _PROGRESS = progress
     import sigma_data  # noqa: F401  (headless GL before robosuite in a fresh process)
 

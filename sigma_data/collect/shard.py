@@ -10,8 +10,8 @@ dataset; a frame both need is rendered once).
 A worker with more than one core (``render_threads`` >= 2; by default the cores divided among the workers)
 overlaps three things: the env records episode k + 1 in a background thread (:func:`_ahead`), the frames of
 episode k render ahead of the writers in ``render_threads`` threads with their own GL contexts
-(:mod:`sigma_data.replay_render`, bit-identical to rendering them one by one), and the writers write them
-(LeRobot's video encoders run in threads of their own). A worker with one core does them in turn.
+(:mod:`sigma_data.replay_render`, the images of rendering them one by one but for rare single pixels,
+``docs/robosuite.md`` §2), and the writers write them (LeRobot's video encoders run in threads of their own). A worker with one core does them in turn.
 """
 
 from __future__ import annotations

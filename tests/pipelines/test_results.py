@@ -37,7 +37,17 @@ def test_stitch_orders_sections_names_missing_and_failed_ones(tmp_path):
     header = text[: text.index("### ")]
     assert "`sigma-results`" in header and "sigma-results --stitch_only true" in header
     assert "Stitched on: " in header and " cores" in header
-    assert NAMES == ("experts", "ablation", "compare", "learning", "collect", "loader", "renderer", "policy")
+    assert NAMES == (
+        "experts",
+        "ablation",
+        "compare",
+        "learning",
+        "demos",
+        "collect",
+        "loader",
+        "renderer",
+        "policy",
+    )
     titles = [line for line in text.splitlines() if line.startswith("#")]
     assert titles[0] == "# sigma results" and len(titles) == 1 + len(BENCHMARKS)
     assert all(t.startswith("### ") for t in titles[1:])  # fragment '## ' titles demoted under the header

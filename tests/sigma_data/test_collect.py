@@ -428,7 +428,8 @@ def test_cli_output_is_the_summary_line_only(tmp_path):
 
 
 def test_merge_prints_no_per_file_bars(first_run, tmp_path, capfd):
-    """LeRobot's SuppressProgressBars turns datasets' bars back on as it exits; a merge keeps them off."""
+    """LeRobot's SuppressProgressBars turns datasets' bars back on as it exits; a merge keeps them off (and
+    LeRobot's own merge bars too without progress)."""
     from datasets.utils.logging import enable_progress_bar
 
     out, summary = first_run
@@ -438,6 +439,10 @@ def test_merge_prints_no_per_file_bars(first_run, tmp_path, capfd):
     err = capfd.readouterr().err
     assert "Copy data and videos" in err  # LeRobot's one bar for the merge stays
     assert "Generating train split" not in err and "Map" not in err, err[-2000:]
+    # --progress=false: LeRobot's merge bars too
+    merge_shards("keyframe", roots, tmp_path / "quiet", "local/quiet", progress=False)
+    err = capfd.readouterr().err
+    assert "Copy data and videos" not in err and "Validate all meta data" not in err, err[-2000:]
 
 
 def test_recording_ahead_keeps_order_raises_and_stops_with_its_consumer():
