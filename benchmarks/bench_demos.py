@@ -14,10 +14,8 @@ same seeds (``sigma-eval``, from 100000, Wilson 95% intervals). Every stage resu
 
 from __future__ import annotations
 
-import json
 import os
 import sys
-import time
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -92,9 +90,8 @@ def first_seeds(root: Path, n: int) -> list[int]:
 
 def run_one(cfg: DemosBenchConfig, n: int, train_root: Path, held_root: Path) -> dict:
     """Train on ``n`` demonstrations per variation (unless done), diagnose, evaluate (unless done)."""
-    from pipelines.diagnostics import DiagnoseConfig, run_diagnose
-    from pipelines.evaluate import EvalConfig, run_eval
-    from pipelines.training import TrainRun, train
+    from benchmarks.training_runs import train_diagnose_evaluate
+    from pipelines.training import TrainRun
     from sigma_data.suite import scene_bounds
 
     episodes = first_seeds(train_root, n)
@@ -110,37 +107,17 @@ def run_one(cfg: DemosBenchConfig, n: int, train_root: Path, held_root: Path) ->
         save_freq=max(1, cfg.steps // cfg.checkpoints),
         extra_args=["--dataset.episodes=[" + ",".join(map(str, episodes)) + "]"],
     )
-    record = run_dir / "train_seconds.json"
-    if run.reuse_or_clear(record, f"[demos] {n} per variation") is None:
-        print(f"[demos] {n} per variation ({len(episodes)} episodes): lerobot-train", flush=True)
-        _, seconds = train(run, log_path=run_dir / "train.log")
-        record.write_text(json.dumps({"seconds": seconds}))
-    diag = run_diagnose(DiagnoseConfig(run=run.output_dir, heldout_root=held_root, max_frames=200))
-    results = run_dir / "eval" / "results.json"
-    if results.exists():
-        summary = json.loads(results.read_text())
-    else:
-        t0 = time.perf_counter()
-        summary = run_eval(
-            EvalConfig(
-                checkpoint=run.checkpoint,
-                tasks=cfg.tasks,
-                episodes=cfg.eval_episodes,
-                train_dataset=train_root,
-                max_keyframes=cfg.max_keyframes,
-                workers=cfg.workers,
-                output_dir=run_dir / "eval",
-            )
-        )
-        print(f"[demos] {n} per variation: evaluated in {time.perf_counter() - t0:.0f} s", flush=True)
-    seconds = json.loads(record.read_text())["seconds"]
-    return {
-        "demos": n,
-        "episodes": len(episodes),
-        "train_seconds": seconds,
-        "diagnostics": diag,
-        "eval": summary,
-    }
+    done = train_diagnose_evaluate(
+        run,
+        run_dir,
+        held_root,
+        cfg.tasks,
+        f"[demos] {n} per variation ({len(episodes)} episodes)",
+        episodes=cfg.eval_episodes,
+        max_keyframes=cfg.max_keyframes,
+        workers=cfg.workers,
+    )
+    return {"demos": n, "episodes": len(episodes)} | done
 
 
 def numbers(result: dict) -> dict:
@@ -171,7 +148,7 @@ def numbers(result: dict) -> dict:
     }
 
 
-def _cell(s: int, n: int, ci: list[float]) -> str:
+def cell(s: int, n: int, ci: list[float]) -> str:
     return f"{s}/{n} ({100 * ci[0]:.0f}–{100 * ci[1]:.0f}%)"
 
 
@@ -194,12 +171,12 @@ def markdown(cfg: DemosBenchConfig, results: list[dict]) -> str:
         "|---" * (9 + len(names)) + "|",
     ]
     for r, n in zip(results, rows, strict=True):
-        cells = " | ".join(_cell(*n["variations"][k]) for k in names)
+        cells = " | ".join(cell(*n["variations"][k]) for k in names)
         fails = ", ".join(f"{k} {c}" for k, c in sorted(n["failures"].items(), key=lambda kv: -kv[1])) or "-"
         lines.append(
             f"| {r['demos']} | {n['train_cm']:.2f} | {n['held_cm']:.2f} | {100 * n['held_1cm']:.0f}% "
             f"| {n['held_yaw']:.1f} | {100 * n['held_grip']:.0f}% | {cells} "
-            f"| **{_cell(n['successes'], n['episodes'], n['ci95'])}** | {fails} | {r['train_seconds']:.0f} |"
+            f"| **{cell(n['successes'], n['episodes'], n['ci95'])}** | {fails} | {r['train_seconds']:.0f} |"
         )
     return head + "\n".join(lines) + "\n"
 

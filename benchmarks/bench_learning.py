@@ -7,7 +7,8 @@ One keyframe dataset of ``--episodes`` expert demonstrations (seeds from 0) and 
 steps and batch, and is evaluated on the same seeds (from 100000). Two tables:
 
 * **recipes**: the ``small`` preset's optimiser and augmentation as they were before (lr 3e-3, LAMB trust ratio on
-  every tensor, ±12.5 cm / ±45° SE(3) augmentation) and one change at a time up to the ``small`` preset now. Every
+  every tensor, ±12.5 cm / ±45° SE(3) augmentation) and one change at a time up to the ``small`` preset now (the rows
+  before it keep the heads' inputs of that time: no local features, no gripper orientation). Every
   row has the LeakyReLU heads of the preset now: the ReLU heads' collapse shows on Lift + Stack, not on Lift alone
   (``docs/learning.md``);
 * **demonstrations**: the ``small`` preset trained on the first N demonstrations (``--dataset.episodes``).
@@ -20,7 +21,6 @@ Every run resumes (a finished checkpoint is not retrained, a finished evaluation
 
 from __future__ import annotations
 
-import json
 import os
 import sys
 from dataclasses import dataclass, field
@@ -33,18 +33,36 @@ from sigma_data.cameras import DEFAULT_CAMERAS
 os.environ.setdefault("HF_HUB_OFFLINE", "1")
 
 PREVIOUS_AUG = ["--policy.aug_translation_range=0.125", "--policy.aug_yaw_range_deg=45"]
+# The heads' inputs before the local features and the gripper orientation (the small preset of 2026-11-23).
+PREVIOUS_HEADS = [
+    "--policy.local_channels=0",
+    "--policy.proprio_orientation=false",
+    "--policy.proprio_in_heads=false",
+]
 # name -> (what differs from the small preset, extra lerobot-train arguments)
 RECIPES: dict[str, tuple[str, list[str]]] = {
     "previous": (
         "previous optimiser and augmentation: lr 3e-3, trust ratio on every tensor, ±12.5 cm / ±45°",
-        ["--policy.optimizer_lr=3e-3", "--policy.optimizer_exempt_small=false", *PREVIOUS_AUG],
+        [
+            "--policy.optimizer_lr=3e-3",
+            "--policy.optimizer_exempt_small=false",
+            *PREVIOUS_AUG,
+            *PREVIOUS_HEADS,
+        ],
     ),
-    "optimizer": ("lr 1e-2, biases/norms/queries exempt from the trust ratio, ±12.5 cm / ±45°", PREVIOUS_AUG),
+    "optimizer": (
+        "lr 1e-2, biases/norms/queries exempt from the trust ratio, ±12.5 cm / ±45°",
+        [*PREVIOUS_AUG, *PREVIOUS_HEADS],
+    ),
     "aug_small": (
         "same optimiser, ±5 cm / ±15°",
-        ["--policy.aug_translation_range=0.05", "--policy.aug_yaw_range_deg=15"],
+        ["--policy.aug_translation_range=0.05", "--policy.aug_yaw_range_deg=15", *PREVIOUS_HEADS],
     ),
-    "small": ("same optimiser, augmentation off (the small preset now)", []),
+    "no_aug": (
+        "same optimiser, augmentation off (the small preset of 2026-11-23)",
+        ["--policy.aug_yaw_range_deg=0", *PREVIOUS_HEADS],
+    ),
+    "small": ("the small preset now: ±45° yaw, the heads' local features and the gripper's orientation", []),
 }
 
 
@@ -107,11 +125,8 @@ def collect_data(cfg: LearningBenchConfig) -> tuple[Path, Path]:
 
 def run_one(cfg: LearningBenchConfig, name: str, args: list[str], train_root: Path, held_root: Path) -> dict:
     """Train (unless done), diagnose every checkpoint, evaluate closed loop (unless done); return the numbers."""
-    import time
-
-    from pipelines.diagnostics import DiagnoseConfig, run_diagnose
-    from pipelines.evaluate import EvalConfig, run_eval
-    from pipelines.training import TrainRun, train
+    from benchmarks.training_runs import train_diagnose_evaluate
+    from pipelines.training import TrainRun
     from sigma_data.suite import scene_bounds
 
     run_dir = cfg.output_dir / "runs" / name
@@ -126,35 +141,17 @@ def run_one(cfg: LearningBenchConfig, name: str, args: list[str], train_root: Pa
         save_freq=max(1, cfg.steps // cfg.checkpoints),
         extra_args=args,
     )
-    timing = run_dir / "train_seconds.json"
-    if not (run.checkpoint / "config.json").exists():
-        if run.output_dir.exists():
-            import shutil
-
-            shutil.rmtree(run.output_dir)  # an unfinished run: LeRobot refuses to reuse the directory
-        print(f"[learning] {name}: lerobot-train {' '.join(args)}", flush=True)
-        _, seconds = train(run, log_path=run_dir / "train.log")
-        timing.write_text(json.dumps({"seconds": seconds}))
-    diag = run_diagnose(DiagnoseConfig(run=run.output_dir, heldout_root=held_root, max_frames=200))
-    results = run_dir / "eval" / "results.json"
-    if results.exists():
-        summary = json.loads(results.read_text())
-    else:
-        t0 = time.perf_counter()
-        summary = run_eval(
-            EvalConfig(
-                checkpoint=run.checkpoint,
-                tasks=[cfg.task],
-                episodes=cfg.eval_episodes,
-                train_dataset=train_root,
-                max_keyframes=cfg.max_keyframes,
-                workers=cfg.workers,
-                output_dir=run_dir / "eval",
-            )
-        )
-        print(f"[learning] {name}: evaluated in {time.perf_counter() - t0:.0f} s", flush=True)
-    seconds = json.loads(timing.read_text())["seconds"] if timing.exists() else float("nan")
-    return {"name": name, "args": args, "train_seconds": seconds, "diagnostics": diag, "eval": summary}
+    done = train_diagnose_evaluate(
+        run,
+        run_dir,
+        held_root,
+        [cfg.task],
+        f"[learning] {name}",
+        episodes=cfg.eval_episodes,
+        max_keyframes=cfg.max_keyframes,
+        workers=cfg.workers,
+    )
+    return {"name": name, "args": args} | done
 
 
 def _row_numbers(result: dict) -> dict:

@@ -48,8 +48,10 @@ class DemoConfig:
     eval_episodes: int = 10
     max_keyframes: int = 12
     # Training steps and batch size of the small policy.
-    steps: int = 1500
+    steps: int = 1000
     batch_size: int = 8
+    # Train and evaluate the network in bf16 autocast where the CPU has native bf16 (--policy.use_cpu_bf16_autocast).
+    bf16: bool = False
     cameras: list[str] = field(default_factory=lambda: list(DEFAULT_CAMERAS))
     image_size: int = 64
     workers: int = 2
@@ -130,6 +132,7 @@ def train_stage(cfg: DemoConfig, keyframe_root: Path) -> Path:
         batch_size=cfg.batch_size,
         scene_bounds=scene_bounds(cfg.tasks),
         job_name="sigma_demo",
+        extra_args=["--policy.use_cpu_bf16_autocast=true"] if cfg.bf16 else [],
     )
     checkpoint, _ = train(run)
     return checkpoint

@@ -43,17 +43,37 @@ class TrainRun:
     def checkpoint(self) -> Path:
         return self.output_dir / "checkpoints" / "last" / "pretrained_model"
 
+    @property
+    def resumable(self) -> Path | None:
+        """The run's last complete checkpoint with its training state (LeRobot moves the ``last`` link only
+        after a checkpoint is written), from which ``lerobot-train --resume=true`` continues; else None."""
+        last = self.output_dir / "checkpoints" / "last"
+        config = last / "pretrained_model" / "train_config.json"
+        return last if (last / "training_state").is_dir() and config.exists() else None
+
     def reuse_or_clear(self, record: Path, name: str) -> dict | None:
         """A pipeline's stage record of this run (``record``, JSON) when the run finished and saved its checkpoint;
-        otherwise clear ``output_dir`` (lerobot-train refuses an existing one without ``--resume``) and None."""
+        otherwise None, after clearing ``output_dir`` (lerobot-train refuses an existing one without
+        ``--resume``) unless an interrupted run left a checkpoint to resume from (:attr:`resumable`)."""
         if record.exists() and (self.checkpoint / "config.json").exists():
             print(f"{name}: reusing the finished run in {self.output_dir}", flush=True)
             return json.loads(record.read_text())
-        if self.output_dir.exists():
+        if self.resumable is not None:
+            print(f"{name}: resuming the interrupted run from {self.resumable.resolve()}", flush=True)
+        elif self.output_dir.exists():
             shutil.rmtree(self.output_dir)
         return None
 
     def command(self) -> list[str]:
+        """The ``lerobot-train`` command line: a fresh run, or ``--resume=true`` from :attr:`resumable` (the
+        saved ``train_config.json`` then holds every option)."""
+        if self.resumable is not None:
+            config = self.resumable / "pretrained_model" / "train_config.json"
+            return [
+                str(Path(sys.executable).with_name("lerobot-train")),
+                f"--config_path={config}",
+                "--resume=true",
+            ]
         policy = [f"--policy.type={self.policy_type}", f"--policy.device={self.device}"]
         if self.policy_type == "sigma":
             policy.append(f"--policy.preset={self.preset}")

@@ -180,6 +180,21 @@ def recorded_bounds(root: str | Path) -> list[list[float]]:
         return []
 
 
+def recorded_instruction_bounds(root: str | Path) -> dict[str, list[float]]:
+    """instruction -> its task's workspace box, from a sigma dataset's ``meta/sigma.json`` (each episode's
+    ``instruction`` and ``task``, and ``"bounds": {task: box}``); {} if the sidecar records neither."""
+    try:
+        sidecar = read_sidecar(root)
+    except (OSError, ValueError):
+        return {}
+    boxes = sidecar.get("bounds", {})
+    return {
+        str(ep["instruction"]): list(boxes[ep["task"]])
+        for ep in sidecar.get("episodes", [])
+        if "instruction" in ep and ep.get("task") in boxes
+    }
+
+
 def dataset_kind(root: str | Path, features: Mapping[str, Mapping[str, Any]]) -> DatasetKind:
     """``"dense"`` or ``"keyframe"``: the sidecar's ``kind`` if there is a sidecar, else the action size (7 or
     9). Raises ``ValueError`` naming the file or feature when neither decides."""

@@ -35,7 +35,7 @@ def se3_augment(
     generator: torch.Generator | None = None,
 ) -> tuple[Tensor, Tensor, Tensor, Tensor]:
     """Randomly translate and yaw each sample's world cloud ``(B, N, 3)`` and target ``pos (B, 3)``,
-    ``quat (B, 4)`` (xyzw). Returns ``(points', pos', quat', transforms (B, 4, 4))`` where ``transforms`` maps
+    ``quat (B, 4)`` (xyzw), inside ``bounds`` ((6,) shared or (B, 6) per sample). Returns ``(points', pos', quat', transforms (B, 4, 4))`` where ``transforms`` maps
     old world coordinates to new ones. NaN points stay NaN. Random draws come from ``generator`` (on its
     device) when given."""
     if points.ndim != 3 or points.shape[-1] != 3:
@@ -47,13 +47,15 @@ def se3_augment(
         )
     dev, dtype = points.device, points.dtype
     b = torch.as_tensor(bounds, dtype=dtype, device=dev)
-    if b.shape != (6,):
-        raise ValueError(f"bounds must be (6,) = (xmin, ymin, zmin, xmax, ymax, zmax), got {tuple(b.shape)}")
+    if b.shape not in ((6,), (B, 6)):
+        raise ValueError(
+            f"bounds must be (6,) or ({B}, 6) = (xmin, ymin, zmin, xmax, ymax, zmax), got {tuple(b.shape)}"
+        )
     gen_dev = generator.device if generator is not None else dev
     u = torch.rand(B, 4, generator=generator, device=gen_dev).to(device=dev, dtype=dtype) * 2 - 1
     pos = pos.to(dtype)
-    lo = torch.minimum(b[:3] - pos, torch.zeros_like(pos))
-    hi = torch.maximum(b[3:] - pos, torch.zeros_like(pos))
+    lo = torch.minimum(b[..., :3] - pos, torch.zeros_like(pos))
+    hi = torch.maximum(b[..., 3:] - pos, torch.zeros_like(pos))
     t = torch.minimum(torch.maximum(u[:, :3] * xyz_range, lo), hi)
     theta = u[:, 3] * math.radians(yaw_range_deg)
     c, s = torch.cos(theta), torch.sin(theta)

@@ -39,11 +39,17 @@ from sigma_policy.augmentation import se3_augment
 from sigma_policy.configuration_sigma import SigmaConfig
 from sigma_policy.contrastive import contrastive_losses, instruction_ids
 from sigma_policy.heatmap import gaussian_heatmaps, heatmap_to_cube_point
-from sigma_policy.network import DenseBlock, NetworkOutput, SigmaNetwork
+from sigma_policy.network import NetworkOutput, SigmaNetwork
 from sigma_policy.pointcloud import bounds_mask, cube_to_world, depth_to_world_points, world_to_cube
 from sigma_policy.renderer import VirtualViewRenderer
-from sigma_policy.rotation import bins_to_quat, quat_to_bins
+from sigma_policy.rotation import bins_to_quat, quat_to_bins, quat_to_matrix
 from sigma_policy.text_encoder import make_text_encoder
+
+
+def _cpu_has_bf16() -> bool:
+    """Whether oneDNN runs bf16 natively on this CPU (AVX512-BF16 or AMX); elsewhere bf16 is emulated and slower."""
+    return bool(torch.backends.mkldnn.is_available() and torch.ops.mkldnn._is_mkldnn_bf16_supported())
+
 
 NOISY_CHANNELS = 7  # xyz, rgb, depth get the render noise; the 3 pixel-location channels do not
 MM_PER_M = 1000.0
@@ -90,6 +96,7 @@ class SigmaPolicy(PreTrainedPolicy):
         self.config: SigmaConfig = config
         self.cameras = config.camera_names()
         self._depth_checked = False
+        self._warned_instructions: set[str] = set()
         # Frozen and cached per instruction; kept outside the module tree so it is neither saved nor trained.
         self.__dict__["text_encoder"] = make_text_encoder(config.text_encoder, config.text_encoder_path)
         self._lang_cache: dict[str, tuple[Tensor, Tensor]] = {}
@@ -107,33 +114,59 @@ class SigmaPolicy(PreTrainedPolicy):
 
     @classmethod
     def _load_as_safetensor(cls, model, model_file: str, map_location: str, strict: bool):
-        """LeRobot's loader, after matching the network to what the file holds: a checkpoint saved before
-        ``lang_film`` existed (its config then resolves it from the preset) has no FiLM weights, and loading it
-        into a network with FiLM would leave that module randomly initialised (LeRobot loads non-strictly)."""
+        """LeRobot's loader, after matching the network to what the file holds. A checkpoint saved before a
+        module existed (``lang_film``, ``local_channels``, the proprio token's position and orientation, the proprio
+        input of the heads) has no
+        config field for it, so its config resolves it from today's preset; loading it into a network with that
+        module would leave the module randomly initialised (LeRobot loads non-strictly). Such fields are turned
+        off (with a warning) and the network rebuilt to the saved shapes."""
         from safetensors import safe_open
 
+        log = logging.getLogger(__name__)
         with safe_open(model_file, "pt") as f:
-            names = f.keys()  # a safe_open handle is not iterable
-        has_film = any(k.startswith("network.lang_film.") for k in names)
-        if model.network.lang_film is not None and not has_film:
-            logging.getLogger(__name__).warning(
-                "%s has no instruction-FiLM weights (saved before policy.lang_film existed): loading without it",
-                model_file,
+            names = set(f.keys())  # a safe_open handle is not iterable
+
+            def width(key: str) -> int | None:
+                return f.get_slice(key).get_shape()[1] if key in names else None
+
+            saved_proprio = width("network.proprio_preprocess.linear.weight")
+            saved_head = width("network.feat_fc.0.weight")
+        cfg = model.config
+        if cfg.lang_film and not any(k.startswith("network.lang_film.") for k in names):
+            log.warning(
+                "%s has no instruction-FiLM weights (saved before policy.lang_film existed)", model_file
             )
-            model.network.lang_film = None
-            model.config.lang_film = False
-        proprio = model.network.proprio_preprocess
-        if proprio is not None and model.config.proprio_position:
-            with safe_open(model_file, "pt") as f:
-                key = "network.proprio_preprocess.linear.weight"
-                saved_in = f.get_slice(key).get_shape()[1] if key in names else proprio.linear.in_features
-            if saved_in == 3:  # saved before policy.proprio_position existed
-                logging.getLogger(__name__).warning(
-                    "%s has a gripper-only proprio token (saved before policy.proprio_position existed)",
+            cfg.lang_film = False
+        if cfg.local_channels and not any(k.startswith("network.local_encoder.") for k in names):
+            log.warning(
+                "%s has no local head features (saved before policy.local_channels existed)", model_file
+            )
+            cfg.local_channels = 0
+        if saved_proprio is not None and saved_proprio < cfg.network_config().proprio_dim:
+            log.warning(
+                "%s has a %d-D proprio token (saved before policy.proprio_position/proprio_orientation existed)%s",
+                model_file,
+                saved_proprio,
+                ": a gripper-only proprio token" if saved_proprio == 3 else "",
+            )
+            cfg.proprio_position = saved_proprio >= 6
+            cfg.proprio_orientation = False
+        if cfg.proprio_in_heads and saved_head is not None:
+            net = cfg.network_config()
+            without = net.num_views * (net.im_channels + net.final_dim + net.local_channels)
+            if saved_head == without:
+                log.warning(
+                    "%s has heads without the proprio input (saved before policy.proprio_in_heads)",
                     model_file,
                 )
-                model.network.proprio_preprocess = DenseBlock(3, proprio.linear.out_features)
-                model.config.proprio_position = False
+                cfg.proprio_in_heads = False
+        if model.network.cfg != cfg.network_config():
+            model.network = SigmaNetwork(
+                cfg.network_config(),
+                model.text_encoder.token_dim,
+                model.text_encoder.sentence_dim,
+                model.text_encoder.max_length,
+            )
         return super()._load_as_safetensor(model, model_file, map_location, strict)
 
     # ------------------------------------------------------------------ LeRobot API
@@ -173,17 +206,18 @@ class SigmaPolicy(PreTrainedPolicy):
         if action.ndim != 2 or action.shape[1] != 9:
             raise ValueError(f"batch['action'] must be (B, 9), got {tuple(action.shape)}")
         tasks = self._tasks(batch, action.shape[0])
+        bounds = self._bounds(tasks)
 
         cloud = self._cloud(batch, t=0)
         points, pos, quat, transforms = se3_augment(
             cloud.points,
             action[:, :3],
             action[:, 3:7],
-            self.scene_bounds,
+            bounds,
             xyz_range=cfg.aug_translation_range,
             yaw_range_deg=cfg.aug_yaw_range_deg,
         )
-        views = self._add_render_noise(self._render(points, cloud.colors, self.scene_bounds))
+        views = self._add_render_noise(self._render(points, cloud.colors, bounds))
 
         goal_views = None
         if cfg.use_contrastive:
@@ -193,17 +227,19 @@ class SigmaPolicy(PreTrainedPolicy):
                 goal.points,
                 state[:, :3],
                 state[:, 3:7],
-                self.scene_bounds,
+                bounds,
                 xyz_range=cfg.aug_translation_range,
                 yaw_range_deg=cfg.aug_yaw_range_deg,
             )
-            goal_views = self._add_render_noise(self._render(goal_points, goal.colors, self.scene_bounds))
+            goal_views = self._add_render_noise(self._render(goal_points, goal.colors, bounds))
 
-        out = self._run_network(views, tasks, batch, goal_views=goal_views, transforms=transforms)
+        target_uv = self.renderer.project(world_to_cube(pos[:, None], bounds))[:, 0]  # (B, V, 2)
+        target_hm = gaussian_heatmaps(target_uv, cfg.img_size, sigma=cfg.gt_heatmap_sigma)
+        out = self._run_network(
+            views, tasks, batch, bounds, goal_views=goal_views, transforms=transforms, head_heatmap=target_hm
+        )
 
         # ---- behaviour cloning (per sample)
-        target_uv = self.renderer.project(world_to_cube(pos[:, None], self.scene_bounds))[:, 0]  # (B, V, 2)
-        target_hm = gaussian_heatmaps(target_uv, cfg.img_size, sigma=cfg.gt_heatmap_sigma)
         log_p = torch.log_softmax(out.trans.float().flatten(2), dim=-1)
         trans_loss = -(target_hm.flatten(2) * log_p).sum(-1).mean(-1)  # mean over views
         rot_bins = quat_to_bins(quat, cfg.num_rotation_bins)  # (B, 3)
@@ -252,12 +288,12 @@ class SigmaPolicy(PreTrainedPolicy):
         """Deterministic prediction (no augmentation, no render noise) with everything needed to visualise it."""
         cfg = self.config
         cloud = self._cloud(batch, t=0)
-        b = cloud.points.shape[0]
-        bounds = self.scene_bounds.expand(b, 6)
+        tasks = self._tasks(batch, cloud.points.shape[0])
+        bounds = self._bounds(tasks)
         if cfg.place_with_mean_at_eval:
             bounds = self._cloud_box(cloud.points, bounds)
         views = self._render(cloud.points, cloud.colors, bounds)
-        out = self._run_network(views, self._tasks(batch, b), batch)
+        out = self._run_network(views, tasks, batch, bounds)
         trans = out.trans.float()
         point_cube = heatmap_to_cube_point(trans, cfg.img_size, refine_px=cfg.heatmap_refine_px)
         point_world = cube_to_world(point_cube, bounds)
@@ -327,6 +363,23 @@ class SigmaPolicy(PreTrainedPolicy):
             raise ValueError(f"sigma: {len(tasks)} task strings for a batch of {b}")
         return tasks
 
+    def _bounds(self, tasks: list[str]) -> Tensor:
+        """(B, 6) world box of each sample: its instruction's task box with ``per_task_bounds`` (an instruction
+        the policy was not trained on gets ``scene_bounds``, with a warning once), else ``scene_bounds``."""
+        boxes = self.config.instruction_bounds
+        if not self.config.per_task_bounds or not boxes:
+            return self.scene_bounds.expand(len(tasks), 6)
+        unknown = {t for t in tasks if t not in boxes} - self._warned_instructions
+        if unknown:
+            logging.getLogger(__name__).warning(
+                "no task box for instruction(s) %s: using scene_bounds %s",
+                sorted(unknown),
+                self.config.scene_bounds,
+            )
+            self._warned_instructions |= unknown
+        union = self.config.scene_bounds
+        return torch.tensor([boxes.get(t, union) for t in tasks], dtype=torch.float32, device=self._device)
+
     def _cloud(self, batch: dict[str, Any], t: int) -> _Cloud:
         """Fused world-frame point cloud of all cameras at frame ``t``."""
         scale = 1 / MM_PER_M if self.config.depth_unit == "mm" else 1.0
@@ -395,38 +448,45 @@ class SigmaPolicy(PreTrainedPolicy):
         sentence = torch.stack([self._lang_cache[s][1] for s in tasks])
         return tokens, sentence
 
-    def _proprio(self, batch: dict[str, Any], transforms: Tensor | None) -> Tensor | None:
+    def _proprio(self, batch: dict[str, Any], bounds: Tensor, transforms: Tensor | None) -> Tensor | None:
         """The proprio token's input: [gripper_open, finger_q1, finger_q2] (+ the grip site's position in the
-        scene box with ``proprio_position``, moved by the same augmentation as the cloud)."""
+        scene box with ``proprio_position``, + its orientation as the first two columns of its rotation matrix with
+        ``proprio_orientation``; both moved by the same augmentation as the cloud)."""
         if not self.config.use_proprio:
             return None
         state = self._take(batch, OBS_STATE, 0, 1).float()
-        proprio = state[:, 7:10]
+        parts = [state[:, 7:10]]
+        rotation = transforms[:, :3, :3].to(state) if transforms is not None else None
         if self.config.proprio_position:
             pos = state[:, :3]
-            if transforms is not None:
-                pos = torch.einsum("bij,bj->bi", transforms[:, :3, :3].to(pos), pos) + transforms[
-                    :, :3, 3
-                ].to(pos)
-            proprio = torch.cat([proprio, world_to_cube(pos, self.scene_bounds)], dim=-1)
-        return proprio
+            if rotation is not None:
+                pos = torch.einsum("bij,bj->bi", rotation, pos) + transforms[:, :3, 3].to(pos)
+            parts.append(world_to_cube(pos, bounds))
+        if self.config.proprio_orientation:
+            R = quat_to_matrix(state[:, 3:7])
+            if rotation is not None:
+                R = rotation @ R
+            parts.append(R[:, :, :2].transpose(1, 2).flatten(1))  # columns x, y: continuous, sign-free
+        return torch.cat(parts, dim=-1)
 
     def _run_network(
         self,
         views: Tensor,
         tasks: list[str],
         batch: dict[str, Any],
+        bounds: Tensor,
         goal_views: Tensor | None = None,
         transforms: Tensor | None = None,
+        head_heatmap: Tensor | None = None,
     ) -> NetworkOutput:
         tokens, sentence = self._language(tasks)
-        proprio = self._proprio(batch, transforms)
+        proprio = self._proprio(batch, bounds, transforms)
         device = views.device
-        autocast = (
-            torch.autocast("cuda", dtype=torch.bfloat16)
-            if self.config.use_bf16_autocast and device.type == "cuda" and torch.cuda.is_bf16_supported()
-            else nullcontext()
-        )
+        autocast = nullcontext()
+        if self.config.use_bf16_autocast and device.type == "cuda" and torch.cuda.is_bf16_supported():
+            autocast = torch.autocast("cuda", dtype=torch.bfloat16)
+        elif self.config.use_cpu_bf16_autocast and device.type == "cpu" and _cpu_has_bf16():
+            autocast = torch.autocast("cpu", dtype=torch.bfloat16)
         with autocast:
             return self.network(
                 views,
@@ -434,4 +494,5 @@ class SigmaPolicy(PreTrainedPolicy):
                 lang_sentence=sentence if goal_views is not None else None,
                 goal_images=goal_views,
                 proprio=proprio,
+                head_heatmap=head_heatmap if self.network.local_encoder is not None else None,
             )

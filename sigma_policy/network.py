@@ -17,7 +17,9 @@ T = ``img_size // patch_size`` patches per side, D = ``attn_dim``, L = language 
 6. Decoder: image tokens -> Linear D -> c -> per view conv k at T x T, bilinear x patch_size, conv k, concat ``d0``,
    conv 3x3 -> ``u`` (BV, ``final_dim``, H, W) -> conv 3x3 -> translation logits (B, V, H, W).
 7. Heads: [max over tokens (c*V, channel-major), heatmap-weighted sum of ``u`` (V*final_dim, view-major)] -> MLP
-   -> 3 x ``num_rotation_bins`` Euler-bin logits, 2 gripper logits, 2 collision logits.
+   -> 3 x ``num_rotation_bins`` Euler-bin logits, 2 gripper logits, 2 collision logits. Not in the paper, both
+   off in ``paper``: ``local_channels`` adds a heatmap-weighted sum of full-resolution local features
+   (:class:`LocalEncoder`) and ``proprio_in_heads`` the proprio vector to the MLP's input.
 8. Goal branch (training, contrastive): the goal render shares steps 1-3 (own positional encoding), tokens are
    mean-pooled per view, concatenated over views and projected -> ``goal_feat`` (phi(g)).
 
@@ -35,6 +37,9 @@ from typing import Literal
 import torch
 import torch.nn.functional as F
 from torch import Tensor, nn
+
+from sigma_policy.heatmap import gaussian_heatmaps, heatmap_to_cube_point
+from sigma_policy.renderer import project_points
 
 LRELU_SLOPE = 0.02
 
@@ -74,6 +79,17 @@ class NetworkConfig:
     lang_film: bool = False
     lang_film_code_dim: int = 8
     proprio_dim: int = 3
+    # The proprio vector also enters the rotation/gripper/collision MLP directly (not only as a fusion token).
+    proprio_in_heads: bool = False
+    # Local features for the heads (not in the paper; RVT-2 reads rotation at the predicted location of a zoomed
+    # stage): ``local_channels`` > 0 adds a full-resolution dilated CNN on each rendered view
+    # (:class:`LocalEncoder`), pooled per view by a heatmap (the target's in training, the same Gaussian at the
+    # predicted point at inference), so the heads see the object's outline around the keyframe position, e.g. a cube's edges.
+    local_channels: int = 0
+    local_dilations: tuple[int, ...] = (1, 2, 4, 8)
+    # Width (pixels) of the Gaussian that pools the local features: in training the target heatmap has it, at
+    # inference the same Gaussian sits at the predicted 3D point's projections, so the heads see the same pooling.
+    head_pool_sigma: float = 1.5
     logit_scale_init: float = math.log(1 / 0.07)
     channels_last: bool = False  # NHWC conv activations: the layout tensor-core convolutions want on GPUs
 
@@ -86,6 +102,8 @@ class NetworkConfig:
             raise ValueError(f"head_activation must be 'relu' or 'leaky_relu', got {self.head_activation!r}")
         if self.num_queries < 1:
             raise ValueError(f"num_queries must be >= 1, got {self.num_queries}")
+        if self.local_channels < 0 or (self.local_channels and not self.local_dilations):
+            raise ValueError("local_channels must be >= 0, with at least one dilation when > 0")
         if self.im_channels % 4 or self.attn_dim % 4:
             raise ValueError("im_channels and attn_dim must be multiples of 4 (GroupNorm(4, .))")
 
@@ -104,7 +122,7 @@ def _init_for_activation(module: nn.Conv2d | nn.Linear, activation: bool) -> Non
 
 
 class ConvBlock(nn.Sequential):
-    """Conv2d (replicate padding, ``k // 2``) + optional GroupNorm(4) + optional LeakyReLU(0.02).
+    """Conv2d (replicate padding, ``dilation * (k // 2)``) + optional GroupNorm(4) + optional LeakyReLU(0.02).
 
     ``pre_padded``: the input already carries its replicate border (see :class:`BilinearUpsample`), so the conv
     pads nothing. A 1x1 conv pads nothing either (replicate padding by 0 would still copy the input).
@@ -119,9 +137,10 @@ class ConvBlock(nn.Sequential):
         norm: bool = False,
         act: bool = True,
         pre_padded: bool = False,
+        dilation: int = 1,
     ):
-        pad = 0 if stride > 1 or pre_padded else kernel // 2
-        conv = nn.Conv2d(c_in, c_out, kernel, stride, padding=pad)
+        pad = 0 if stride > 1 or pre_padded else dilation * (kernel // 2)
+        conv = nn.Conv2d(c_in, c_out, kernel, stride, padding=pad, dilation=dilation)
         if pad:
             conv.padding_mode = "replicate"
         _init_for_activation(conv, act)
@@ -272,6 +291,38 @@ class LanguageFiLM(nn.Module):
         return img * (1 + gamma) + beta
 
 
+class LocalEncoder(nn.Sequential):
+    """Full-resolution 3x3 convolutions with growing dilation on a rendered view: (BV, C_in, H, W) ->
+    (BV, channels, H, W). With dilations (1, 2, 4, 8) each output pixel sees 31 x 31 input pixels, a 4 cm cube
+    and its surroundings in the ``small`` preset's 5.6 mm pixels; being convolutional, the same outline gives the
+    same features wherever it lies in the view."""
+
+    def __init__(self, c_in: int, channels: int, dilations: tuple[int, ...]):
+        super().__init__(
+            *(
+                ConvBlock(c_in if i == 0 else channels, channels, 3, dilation=d)
+                for i, d in enumerate(dilations)
+            )
+        )
+
+
+def point_heatmaps(logits: Tensor, sigma: float) -> Tensor:
+    """Gaussians ``(B, V, H, W)`` of width ``sigma`` pixels at the projections of the 3D point the translation
+    logits ``(B, V, H, W)`` predict (:func:`~sigma_policy.heatmap.heatmap_to_cube_point`): the views agree on one
+    point, as the training target's projections do, even where one view's own peak lies elsewhere."""
+    size = logits.shape[-1]
+    point = heatmap_to_cube_point(logits, size)
+    uv = project_points(point[:, None].to(logits.dtype), size)[0][:, 0]
+    return gaussian_heatmaps(uv, size, sigma=sigma)
+
+
+def heatmap_pool(heatmap: Tensor, features: Tensor) -> Tensor:
+    """Per-view sum of ``features`` (B, V, C, H, W) weighted by ``heatmap`` (B, V, H, W) -> (B, V*C), view-major."""
+    b, v = heatmap.shape[:2]
+    weights = heatmap.reshape(b, v, -1).to(features.dtype)
+    return torch.einsum("bvn,bvcn->bvc", weights, features.reshape(b, v, features.shape[2], -1)).flatten(1)
+
+
 class ContrastiveHeads(nn.Module):
     """Everything only the contrastive loss needs (dropped from the inference parameter count)."""
 
@@ -345,8 +396,15 @@ class SigmaNetwork(nn.Module):
         def act() -> nn.Module:
             return nn.ReLU() if cfg.head_activation == "relu" else nn.LeakyReLU(LRELU_SLOPE)
 
+        self.local_encoder = (
+            LocalEncoder(cfg.in_channels, cfg.local_channels, cfg.local_dilations)
+            if cfg.local_channels
+            else None
+        )
+        head_in = cfg.num_views * (c + cfg.final_dim + cfg.local_channels)
+        head_in += cfg.proprio_dim if cfg.use_proprio and cfg.proprio_in_heads else 0
         self.feat_fc = nn.Sequential(
-            nn.Linear(cfg.num_views * (c + cfg.final_dim), h1),
+            nn.Linear(head_in, h1),
             act(),
             nn.Linear(h1, h2),
             act(),
@@ -397,6 +455,7 @@ class SigmaNetwork(nn.Module):
         lang_sentence: Tensor | None = None,
         goal_images: Tensor | None = None,
         proprio: Tensor | None = None,
+        head_heatmap: Tensor | None = None,
     ) -> NetworkOutput:
         """Run the network.
 
@@ -407,6 +466,9 @@ class SigmaNetwork(nn.Module):
                 contrastive features (training only).
             goal_images: (B, V, C_in, H, W) rendered goal state (training only).
             proprio: (B, proprio_dim), only with ``use_proprio``.
+            head_heatmap: (B, V, H, W) weights that pool the local features for the heads (training: the target
+                heatmap); None = the same Gaussian at the predicted 3D point's projections (inference). Only with
+                ``local_channels``.
         """
         cfg = self.cfg
         b = images.shape[0]
@@ -450,11 +512,18 @@ class SigmaNetwork(nn.Module):
         trans = self.trans_decoder(u).reshape(b, cfg.num_views, cfg.img_size, cfg.img_size)
 
         hm_logits = trans.detach() if cfg.detach_heatmap_for_features else trans
-        hm = torch.softmax(hm_logits.flatten(2).float(), dim=-1).to(u.dtype)  # (B, V, HW)
-        u_flat = u.reshape(b, cfg.num_views, u.shape[1], -1)
-        weighted = torch.einsum("bvn,bvcn->bvc", hm, u_flat).flatten(1)  # (B, V*final_dim), view-major
+        hm = torch.softmax(hm_logits.flatten(2).float(), dim=-1).reshape(trans.shape)  # (B, V, H, W)
+        head_in = [max_feat, heatmap_pool(hm, u.reshape(b, cfg.num_views, *u.shape[1:]))]  # (B, V*final_dim)
+        if self.local_encoder is not None:
+            local = self.local_encoder(images.reshape(b * cfg.num_views, *images.shape[2:]))
+            weights = (
+                point_heatmaps(trans.detach(), cfg.head_pool_sigma) if head_heatmap is None else head_heatmap
+            )
+            head_in.append(heatmap_pool(weights, local.reshape(b, cfg.num_views, *local.shape[1:])))
+        if self.proprio_preprocess is not None and cfg.proprio_in_heads:
+            head_in.append(proprio.to(max_feat.dtype))
 
-        head = self.feat_fc(torch.cat([max_feat, weighted], dim=1))
+        head = self.feat_fc(torch.cat(head_in, dim=1))
         nb = cfg.num_rotation_bins
         out = NetworkOutput(
             trans=trans,

@@ -19,6 +19,8 @@ MARKER = "shard.json"
 DATASETS = ("dense", "keyframe")
 # The run's record in output.dir: its data options (before the first shard) and, once merged, every ShardResult.
 RECORD = "collect.json"
+# collect.json while it is written (renamed to RECORD when complete).
+RECORD_TMP = f".{RECORD}.tmp"
 # Options that change how a collection runs, not what it writes: a rerun may change them and still resume.
 RUN_OPTIONS = frozenset(
     {"output.dir", "workers", "render_threads", "executor", "progress", "output.overwrite"}

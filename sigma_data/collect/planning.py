@@ -16,6 +16,7 @@ from pathlib import Path
 from sigma_data.collect.config import (
     MARKER,
     RECORD,
+    RECORD_TMP,
     CollectConfig,
     ShardResult,
     ShardSpec,
@@ -59,6 +60,21 @@ def plan_shards(cfg: CollectConfig) -> list[ShardSpec]:
     return shards
 
 
+def write_record(out: Path, data: dict) -> None:
+    """``<out>/collect.json`` written under a temporary name (:data:`RECORD_TMP`) and renamed: a kill mid-write
+    leaves the previous record or none, never a torn one that every rerun would fail to read."""
+    tmp = out / RECORD_TMP
+    tmp.write_text(json.dumps(data, indent=1))
+    tmp.replace(out / RECORD)
+
+
+def entries(out: Path) -> list[str]:
+    """Names in ``out`` (none if it does not exist), but for a temporary record a killed run may have left."""
+    if not out.is_dir():
+        return []
+    return sorted(p.name for p in out.iterdir() if p.name != RECORD_TMP)
+
+
 def claim_output_dir(cfg: CollectConfig) -> None:
     """Make sure ``output.dir`` holds nothing but this collection (or a resumable run of it), then record the
     options in ``collect.json`` before any shard is written. Anything else there raises ``FileExistsError``
@@ -68,7 +84,7 @@ def claim_output_dir(cfg: CollectConfig) -> None:
     out = Path(cfg.output.dir)
     record = out / RECORD
     mine = cfg.data_options()
-    present = sorted(p.name for p in out.iterdir()) if out.is_dir() else []
+    present = entries(out)
     if present and not cfg.output.overwrite:
         hint = "pass --output.overwrite=true to replace it, or choose another --output.dir"
         if RECORD not in present:
@@ -82,7 +98,7 @@ def claim_output_dir(cfg: CollectConfig) -> None:
             changes = ", ".join(f"{k} {previous.get(k, defaults[k])} -> {mine[k]}" for k in differ)
             raise FileExistsError(f"{out} holds a collection made with other options ({changes}): {hint}")
     if present and cfg.output.overwrite:
-        for name in ("dense", "keyframe", "shards", RECORD):
+        for name in ("dense", "keyframe", "shards", RECORD, RECORD_TMP):
             path = out / name
             if path.is_dir():
                 shutil.rmtree(path)
@@ -90,7 +106,7 @@ def claim_output_dir(cfg: CollectConfig) -> None:
                 path.unlink()
     out.mkdir(parents=True, exist_ok=True)
     if not record.exists():
-        record.write_text(json.dumps({"config": mine, "shards": []}, indent=1))
+        write_record(out, {"config": mine, "shards": []})
 
 
 def check_shard(shard_dir: Path, cfg: CollectConfig) -> tuple[ShardResult | None, str]:

@@ -4,17 +4,24 @@ dataset kind, and record the run in ``collect.json``."""
 
 from __future__ import annotations
 
-import json
 import logging
 import shutil
 import time
 from dataclasses import asdict
 from pathlib import Path
 
-from sigma_data.collect.config import MARKER, RECORD, CollectConfig, CollectSummary, ShardResult, ShardSpec
+from sigma_data.collect.config import (
+    MARKER,
+    RECORD,
+    RECORD_TMP,
+    CollectConfig,
+    CollectSummary,
+    ShardResult,
+    ShardSpec,
+)
 from sigma_data.collect.envs import check_cameras_exist, close_envs
 from sigma_data.collect.merge import merge_shards
-from sigma_data.collect.planning import check_shard, claim_output_dir, plan_shards
+from sigma_data.collect.planning import check_shard, claim_output_dir, entries, plan_shards, write_record
 from sigma_data.collect.scheduler import Helpers, _run_processes
 
 log = logging.getLogger(__name__)
@@ -55,7 +62,7 @@ def collect(cfg: CollectConfig) -> CollectSummary:
     shards = plan_shards(cfg)
     out = Path(cfg.output.dir)
     shards_dir = out / "shards"
-    fresh = not out.exists() or not any(out.iterdir())
+    fresh = not entries(out)
     claim_output_dir(cfg)
     try:
         return _collect(cfg, shards, out, shards_dir, start)
@@ -68,6 +75,7 @@ def collect(cfg: CollectConfig) -> CollectSummary:
 def _forget(out: Path) -> None:
     """Remove what :func:`claim_output_dir` and the run put into a directory that was empty before it."""
     (out / RECORD).unlink(missing_ok=True)
+    (out / RECORD_TMP).unlink(missing_ok=True)
     shutil.rmtree(out / "shards", ignore_errors=True)
     if out.is_dir() and not any(out.iterdir()):
         out.rmdir()
@@ -116,9 +124,5 @@ def _collect(
         if helpers is not None:
             helpers.close()
     summary = CollectSummary(ordered, outputs, time.perf_counter() - start)
-    tmp = out / f".{RECORD}.tmp"
-    tmp.write_text(
-        json.dumps({"config": cfg.data_options(), "shards": [asdict(s) for s in ordered]}, indent=1)
-    )
-    tmp.replace(out / RECORD)
+    write_record(out, {"config": cfg.data_options(), "shards": [asdict(s) for s in ordered]})
     return summary

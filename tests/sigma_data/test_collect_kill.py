@@ -4,6 +4,7 @@ with it, and the shard a helper was writing is not trusted by the next run."""
 from __future__ import annotations
 
 import importlib.util
+import json
 import signal
 import subprocess
 import sys
@@ -14,7 +15,15 @@ import psutil
 import pytest
 
 from sigma_data.cameras import RenderOptions
-from sigma_data.collect import MARKER, CollectConfig, CollectOutputConfig, ShardSpec, check_shard
+from sigma_data.collect import (
+    MARKER,
+    RECORD,
+    CollectConfig,
+    CollectOutputConfig,
+    ShardSpec,
+    check_shard,
+    claim_output_dir,
+)
 
 
 def _running(p: psutil.Process) -> bool:
@@ -80,3 +89,49 @@ def test_killing_the_parent_ends_its_helpers(tmp_path, executor):
     assert not (helper_shard / MARKER).exists()
     result, why = check_shard(helper_shard, cfg)
     assert result is None and "interrupted" in why
+
+
+# A child that claims ``out`` for ``tiny`` options and is SIGKILLed halfway through writing collect.json (the kill
+# lands inside the write: the file open, half its text written).
+_KILLED_MID_RECORD = """
+import os, signal, sys
+from pathlib import Path
+import sigma_data.collect.planning as planning
+from sigma_data.cameras import RenderOptions
+from sigma_data.collect import CollectConfig, CollectOutputConfig
+
+real = Path.write_text
+def torn(self, text, *args, **kwargs):
+    if "collect.json" in self.name:
+        with self.open("w") as f:
+            f.write(text[: len(text) // 2])
+            f.flush()
+            os.kill(os.getpid(), signal.SIGKILL)
+    return real(self, text, *args, **kwargs)
+Path.write_text = torn
+cfg = CollectConfig(tasks="lift", episodes=1, render=RenderOptions(cameras="agentview", height=32, width=32),
+                    output=CollectOutputConfig(dir=Path(sys.argv[1])))
+planning.claim_output_dir(cfg)
+"""
+
+
+def test_a_kill_while_collect_json_is_written_leaves_a_resumable_dir(tmp_path):
+    """collect.json is written before the first shard; a kill in the middle of that write used to leave it torn,
+    and every rerun then failed on it (JSONDecodeError) until --output.overwrite=true threw the shards away. It is
+    written under a temporary name and renamed, and the rerun ignores the temporary file."""
+    out = tmp_path / "run"
+    proc = subprocess.run(
+        [sys.executable, "-c", _KILLED_MID_RECORD, str(out)], capture_output=True, text=True
+    )
+    assert proc.returncode == -signal.SIGKILL, proc.stderr[-2000:]
+    record = out / RECORD
+    assert not record.exists() or json.loads(record.read_text())  # never torn at its final name
+    cfg = CollectConfig(
+        tasks="lift",
+        episodes=1,
+        render=RenderOptions(cameras="agentview", height=32, width=32),
+        output=CollectOutputConfig(dir=out),
+    )
+    claim_output_dir(cfg)  # the rerun's claim: accepted, the options recorded
+    assert json.loads(record.read_text())["config"] == cfg.data_options()
+    assert sorted(p.name for p in out.iterdir()) == [RECORD]

@@ -47,6 +47,29 @@ def single_observation(root: Path, index: int) -> dict:
     return {k: v for k, v in item.items() if k.startswith("observation.") or k == "task"}
 
 
+@pytest.mark.skipif(
+    not torch.ops.mkldnn._is_mkldnn_bf16_supported(), reason="this CPU has no native bf16 (AVX512-BF16/AMX)"
+)
+def test_cpu_bf16_autocast_runs_the_network_in_bf16_and_keeps_the_loss_and_weights_float32(tiny_root):
+    """``use_cpu_bf16_autocast``: the network's matmuls run in bf16 (its logits come out bf16), the losses are
+    computed in float32 from them and the weights the optimiser updates stay float32."""
+    _, policy, pre, _, ds = build(tiny_root, use_cpu_bf16_autocast=True)
+    batch = pre(training_batch(ds, [0, 1, 3, 4]))
+    seen = {}
+    hook = policy.network.register_forward_hook(lambda _m, _i, out: seen.update(dtype=out.trans.dtype))
+    torch.manual_seed(0)
+    loss, _ = policy.forward(batch)
+    hook.remove()
+    assert seen["dtype"] == torch.bfloat16
+    assert loss.dtype == torch.float32 and torch.isfinite(loss)
+    loss.backward()
+    assert all(p.dtype == torch.float32 for p in policy.network.parameters())
+    plain = build(tiny_root)[1]
+    plain.load_state_dict(policy.state_dict())
+    torch.manual_seed(0)
+    assert abs(plain.forward(batch)[0].item() - loss.item()) < 0.05 * loss.item()  # same draws, float32
+
+
 def test_forward_logs_every_loss_part_and_trains_only_the_network(tiny_root):
     cfg, policy, pre, _, ds = build(tiny_root)
     batch = pre(training_batch(ds, [0, 1, 3, 4]))  # frames 0 and 1 of two episodes (never the final frame)
@@ -345,7 +368,9 @@ def test_checkpoint_saved_before_proprio_position_loads_with_its_gripper_only_to
 ):
     import json
 
-    _, policy, pre, _, _ = build(tiny_root, use_proprio=True, proprio_position=False)
+    _, policy, pre, _, _ = build(
+        tiny_root, use_proprio=True, proprio_position=False, proprio_orientation=False, proprio_in_heads=False
+    )
     policy.eval()
     obs = single_observation(tiny_root, 4)
     before = policy.select_action(pre(dict(obs)))
@@ -362,16 +387,117 @@ def test_checkpoint_saved_before_proprio_position_loads_with_its_gripper_only_to
 def test_proprio_position_is_the_grip_site_in_the_box_moved_like_the_cloud(tiny_root):
     """The proprio token gets the grip site's box coordinates; under augmentation the same rigid transform as the
     cloud and the target moves it, so position and images agree."""
-    _, policy, pre, _, ds = build(tiny_root, use_proprio=True, proprio_position=True)
+    _, policy, pre, _, ds = build(
+        tiny_root, use_proprio=True, proprio_position=True, proprio_orientation=False
+    )
     batch = pre(training_batch(ds, [0, 1]))
     state = batch["observation.state"][:, 0].float()
-    plain = policy._proprio(batch, None)
+    plain = policy._proprio(batch, policy.scene_bounds, None)
     assert plain.shape == (2, 6)
     torch.testing.assert_close(plain[:, :3], state[:, 7:10])
     torch.testing.assert_close(plain[:, 3:], world_to_cube(state[:, :3], policy.scene_bounds))
     shift = torch.eye(4).repeat(2, 1, 1)
     shift[:, :3, 3] = torch.tensor([0.05, -0.02, 0.01])
-    moved = policy._proprio(batch, shift)
+    moved = policy._proprio(batch, policy.scene_bounds, shift)
     torch.testing.assert_close(
         moved[:, 3:], world_to_cube(state[:, :3] + shift[:, :3, 3], policy.scene_bounds)
     )
+
+
+def test_proprio_orientation_is_the_grip_site_rotation_turned_like_the_cloud(tiny_root):
+    """With ``proprio_orientation`` the token also holds the first two columns of the grip site's rotation
+    matrix (sign-free, continuous), rotated by the augmentation's rotation like the cloud and the target."""
+    from sigma_policy.rotation import quat_to_matrix
+
+    _, policy, pre, _, ds = build(
+        tiny_root, use_proprio=True, proprio_position=True, proprio_orientation=True
+    )
+    batch = pre(training_batch(ds, [0, 1]))
+    state = batch["observation.state"][:, 0].float()
+    plain = policy._proprio(batch, policy.scene_bounds, None)
+    assert plain.shape == (2, 12) and policy.network.proprio_preprocess.linear.in_features == 12
+    R = quat_to_matrix(state[:, 3:7])
+    torch.testing.assert_close(plain[:, 6:], R[:, :, :2].transpose(1, 2).flatten(1))
+    yaw = torch.tensor(0.7)
+    turn = torch.eye(4).repeat(2, 1, 1)
+    turn[:, :2, :2] = torch.tensor([[yaw.cos(), -yaw.sin()], [yaw.sin(), yaw.cos()]])
+    moved = policy._proprio(batch, policy.scene_bounds, turn)
+    torch.testing.assert_close(moved[:, 6:], (turn[:, :3, :3] @ R)[:, :, :2].transpose(1, 2).flatten(1))
+
+
+def test_checkpoint_saved_before_the_head_inputs_loads_as_saved(tiny_root, tmp_path, caplog):
+    """A checkpoint whose config.json predates ``local_channels``, ``proprio_orientation`` and ``proprio_in_heads``
+    (fields absent, so a preset that turns them on would build modules the file lacks) loads with the network it
+    was saved with."""
+    import json
+
+    _, policy, pre, _, _ = build(
+        tiny_root,
+        use_proprio=True,
+        proprio_position=True,
+        proprio_orientation=False,
+        proprio_in_heads=False,
+        local_channels=0,
+    )
+    policy.eval()
+    obs = single_observation(tiny_root, 4)
+    before = policy.select_action(pre(dict(obs)))
+    policy.save_pretrained(tmp_path)
+    config = json.loads((tmp_path / "config.json").read_text())
+    config |= {"local_channels": 8, "proprio_orientation": True, "proprio_in_heads": True}  # a newer preset's
+    (tmp_path / "config.json").write_text(json.dumps(config))
+    with caplog.at_level("WARNING"):
+        loaded = SigmaPolicy.from_pretrained(tmp_path)
+    assert "no local head features" in caplog.text and "6-D proprio token" in caplog.text
+    assert "without the proprio input" in caplog.text
+    assert loaded.network.local_encoder is None and loaded.config.proprio_orientation is False
+    assert loaded.config.proprio_in_heads is False
+    torch.testing.assert_close(loaded.select_action(pre(dict(obs))), before)
+
+
+def test_per_task_bounds_give_each_instruction_its_task_box(tiny_root):
+    """With ``per_task_bounds`` every sample is cropped, rendered and labelled in its own instruction's box; an
+    instruction without a box falls back to ``scene_bounds``."""
+    small_box = [-0.3, -0.3, 0.7, 0.3, 0.3, 1.3]
+    instruction = str(LeRobotDataset("local/sigma_tiny", root=tiny_root)[0]["task"])
+    _, policy, pre, _, ds = build(
+        tiny_root, per_task_bounds=True, instruction_bounds={instruction: small_box}
+    )
+    union = torch.tensor(BOUNDS, dtype=torch.float32)
+    boxes = policy._bounds([instruction, "an instruction never seen"])
+    torch.testing.assert_close(boxes, torch.stack([torch.tensor(small_box), union]))
+    batch = pre(training_batch(ds, [0, 1]))
+    loss, _ = policy.forward(batch)
+    assert torch.isfinite(loss)
+    policy.eval()
+    pred = policy.predict(batch | {"task": [instruction, "an instruction never seen"]})  # frame 0 of each
+    torch.testing.assert_close(pred.bounds, boxes)
+
+
+def test_per_task_bounds_are_read_from_the_dataset_sidecar(tmp_path):
+    """``instruction_bounds`` come from the sidecar: each episode's instruction gets its task's recorded box."""
+    import json
+
+    from sigma_data.contract import SIDECAR, recorded_instruction_bounds
+
+    sidecar = {
+        "bounds": {
+            "lift": [-0.18, -0.18, 0.75, 0.18, 0.18, 1.11],
+            "pick_place": [-0.4, -0.5, 0.75, 0.6, 0.5, 1.75],
+        },
+        "episodes": [
+            {"task": "lift", "instruction": "lift the cube"},
+            {"task": "pick_place", "instruction": "put the milk in its bin"},
+        ],
+    }
+    (tmp_path / SIDECAR).parent.mkdir(parents=True)
+    (tmp_path / SIDECAR).write_text(json.dumps(sidecar))
+    expected = {
+        "lift the cube": sidecar["bounds"]["lift"],
+        "put the milk in its bin": sidecar["bounds"]["pick_place"],
+    }
+    assert recorded_instruction_bounds(tmp_path) == expected
+    cfg = SigmaConfig(preset="small", device="cpu", per_task_bounds=True)
+    assert cfg.resolve_scene_bounds(tmp_path) == [-0.4, -0.5, 0.75, 0.6, 0.5, 1.75]
+    assert cfg.instruction_bounds == expected
+    assert recorded_instruction_bounds(tmp_path / "missing") == {}

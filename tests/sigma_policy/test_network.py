@@ -135,7 +135,7 @@ def test_config_presets_and_overrides():
         SigmaConfig(preset="small", img_size=60, device="cpu")
     # The CPU recipe (RESULTS.md "Learning") vs the paper's; explicit fields still win over the preset.
     recipe = ("optimizer_lr", "optimizer_exempt_small", "aug_translation_range", "aug_yaw_range_deg")
-    assert tuple(getattr(small, f) for f in recipe) == (1e-2, True, 0.0, 0.0)
+    assert tuple(getattr(small, f) for f in recipe) == (1e-2, True, 0.0, 45.0)
     assert tuple(getattr(paper, f) for f in recipe) == (9.6e-4, False, 0.125, 45.0)
     assert SigmaConfig(preset="small", aug_yaw_range_deg=15, device="cpu").aug_yaw_range_deg == 15
     assert (small.network_config().head_activation, paper.network_config().head_activation) == (
@@ -199,3 +199,52 @@ def test_language_film_tells_word_order_apart_and_conditions_every_image_token()
     assert net.num_parameters() - no_film.num_parameters() == extra == (12 * 8 + 8) + (6 * 8 * 64 + 64)
     with pytest.raises(ValueError, match="expects 6 language tokens, got 5"):
         net(img, tok[:, :5])
+
+
+def test_local_features_see_an_outline_wherever_it_lies_and_are_pooled_where_the_heatmap_says():
+    """The heads' local encoder is convolutional: the same square drawn at two places of a view gives the same
+    pooled features when the pooling heatmap follows it, and other features when the square is turned; its
+    weights get gradients and a given heatmap (the target's, in training) replaces the predicted one."""
+    from sigma_policy.network import LocalEncoder, heatmap_pool
+
+    enc = LocalEncoder(1, 8, (1, 2, 4)).eval()  # receptive field 15 px
+    size = 48
+
+    def square(cx: int, cy: int, turned: bool) -> torch.Tensor:
+        yy, xx = torch.meshgrid(torch.arange(size), torch.arange(size), indexing="ij")
+        dx, dy = (xx - cx).float(), (yy - cy).float()
+        if turned:  # 45 degrees: a diamond
+            dx, dy = (dx - dy) / 2**0.5, (dx + dy) / 2**0.5
+        return ((dx.abs() <= 4) & (dy.abs() <= 4)).float()[None, None]
+
+    def pooled(img: torch.Tensor, cx: int, cy: int) -> torch.Tensor:
+        hm = torch.zeros(1, 1, size, size)
+        hm[0, 0, cy, cx] = 1
+        return heatmap_pool(hm, enc(img)[:, None])
+
+    with torch.no_grad():
+        a = pooled(square(14, 16, False), 14, 16)
+        b = pooled(square(30, 27, False), 30, 27)
+        turned = pooled(square(30, 27, True), 30, 27)
+    torch.testing.assert_close(a, b)
+    assert (a - turned).abs().max() > 1e-3
+
+    cfg = dataclasses.replace(SMALL, local_channels=4, local_dilations=(1, 2))
+    net = SigmaNetwork(cfg, lang_token_dim=12, lang_sentence_dim=12)
+    img, tok, *_ = inputs(cfg)
+    target = torch.zeros(2, 5, 32, 32)
+    target[..., 3, 5] = 1
+    out = net(img, tok, head_heatmap=target)
+    assert not torch.allclose(out.rot_logits, net(img, tok).rot_logits)  # predicted heatmap elsewhere
+    out.rot_logits.sum().backward()
+    assert all(p.grad is not None and p.grad.abs().sum() > 0 for p in net.local_encoder.parameters())
+
+
+def test_proprio_in_heads_widens_the_head_input():
+    cfg = dataclasses.replace(SMALL, use_proprio=True, proprio_dim=12, proprio_in_heads=True)
+    net = SigmaNetwork(cfg, lang_token_dim=12, lang_sentence_dim=12)
+    assert net.feat_fc[0].in_features == 5 * (8 + 8) + 12
+    img, tok, *_ = inputs(cfg)
+    proprio = torch.randn(2, 12, requires_grad=True)
+    net(img, tok, proprio=proprio).rot_logits.sum().backward()
+    assert proprio.grad.abs().sum() > 0

@@ -1,0 +1,195 @@
+"""Suite benchmark: one multi-task ``small`` Σ-agent trained on 2 CPU cores in under two hours, evaluated on every
+variation of Lift, Stack, PickPlace and NutAssembly.
+
+One command collects the keyframe demonstrations (``--episodes`` per variation, seeds from 0) and held-out
+keyframes (``--heldout_episodes`` per variation, seeds from 50000), trains the policy with the stock
+``lerobot-train`` (one run per ``--seeds`` entry: a second training seed says how much of a result is the draw),
+scores every checkpoint on training and held-out keyframes (``sigma-diagnose``) and evaluates the last one closed
+loop on held-out seeds (``sigma-eval``, from 100000, Wilson 95% intervals, failure reasons). Every stage resumes:
+finished collections, checkpoints and evaluations are reused, and an interrupted ``lerobot-train`` continues from
+its last checkpoint (``--resume=true``).
+
+Each task keeps its own scene box (``--policy.per_task_bounds=true``): Lift and Stack are rendered in their 36 cm
+box, PickPlace and NutAssembly in theirs, so adding tasks does not coarsen the views of the others.
+
+    python -m benchmarks.bench_suite                        # one training seed
+    python -m benchmarks.bench_suite --seeds '[0,1]'        # both seeds
+
+Budget: 6000 steps of the ``small`` preset train in about 90 minutes on the 2-core Xeon (0.87 s per
+``lerobot-train`` step measured in ``make demo``), planned to fit two hours with collection and evaluation; a
+whole run has not been timed yet (RESULTS.md says so until it is).
+"""
+
+from __future__ import annotations
+
+import os
+import sys
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import draccus
+
+from sigma_data.cameras import DEFAULT_CAMERAS
+
+os.environ.setdefault("HF_HUB_OFFLINE", "1")
+
+# What the suite trains with beyond the small preset (see docs/learning.md).
+SUITE_ARGS = ["--policy.per_task_bounds=true"]
+
+
+@dataclass
+class SuiteBenchConfig:
+    """Options of the suite benchmark."""
+
+    output_dir: Path = Path("outputs/bench_suite")
+    tasks: list[str] = field(default_factory=lambda: ["lift", "stack", "pick_place", "nut_assembly"])
+    # Training demonstrations per variation (seeds from 0) and held-out ones (seeds from 50000).
+    episodes: int = 30
+    heldout_episodes: int = 5
+    cameras: list[str] = field(default_factory=lambda: list(DEFAULT_CAMERAS))
+    image_size: int = 64
+    # Training budget; checkpoints saved (and diagnosed) this many times per run.
+    steps: int = 6000
+    batch_size: int = 8
+    checkpoints: int = 4
+    # One training run per seed.
+    seeds: list[int] = field(default_factory=lambda: [0])
+    # lerobot-train arguments beyond the small preset.
+    policy_args: list[str] = field(default_factory=lambda: list(SUITE_ARGS))
+    # Closed-loop episodes per variation (seeds from 100000) and keyframes per episode.
+    eval_episodes: int = 20
+    max_keyframes: int = 16
+    workers: int = 2
+    # Write benchmarks/results/suite.{md,json} (RESULTS.md includes them).
+    publish: bool = True
+    results_dir: Path | None = None
+
+
+def collect_data(cfg: SuiteBenchConfig) -> tuple[Path, Path]:
+    from pipelines.collecting import collect_demonstrations
+
+    roots = []
+    for where, episodes, start in (("train", cfg.episodes, 0), ("heldout", cfg.heldout_episodes, 50_000)):
+        out = cfg.output_dir / where
+        done = out / "data" / "keyframe"
+        if not (done / "meta" / "info.json").exists():
+            collect_demonstrations(
+                out,
+                cfg.tasks,
+                episodes,
+                cfg.cameras,
+                cfg.image_size,
+                cfg.workers,
+                f"local/suite_{where}",
+                dense=False,
+                start_seed=start,
+            )
+        roots.append(done)
+    return roots[0], roots[1]
+
+
+def run_one(cfg: SuiteBenchConfig, seed: int, train_root: Path, held_root: Path) -> dict:
+    """Train with ``seed`` (unless done; resumed if interrupted), diagnose, evaluate (unless done)."""
+    from benchmarks.training_runs import train_diagnose_evaluate
+    from pipelines.training import TrainRun
+    from sigma_data.suite import scene_bounds
+
+    run_dir = cfg.output_dir / "runs" / f"seed{seed}"
+    run = TrainRun(
+        dataset_root=train_root,
+        output_dir=run_dir / "train",
+        steps=cfg.steps,
+        batch_size=cfg.batch_size,
+        scene_bounds=scene_bounds(cfg.tasks),
+        seed=seed,
+        job_name=f"suite_seed{seed}",
+        save_freq=max(1, cfg.steps // cfg.checkpoints),
+        extra_args=list(cfg.policy_args),
+    )
+    done = train_diagnose_evaluate(
+        run,
+        run_dir,
+        held_root,
+        cfg.tasks,
+        f"[suite] seed {seed}",
+        episodes=cfg.eval_episodes,
+        max_keyframes=cfg.max_keyframes,
+        workers=cfg.workers,
+    )
+    return {"seed": seed} | done
+
+
+def markdown(cfg: SuiteBenchConfig, results: list[dict]) -> str:
+    from benchmarks.bench_demos import cell, numbers
+
+    rows = [numbers(r) for r in results]
+    names = list(rows[0]["variations"]) if rows else []
+    head = (
+        f"Tasks {', '.join(cfg.tasks)}: {cfg.episodes} demonstrations per variation (seeds from 0), held-out "
+        f"keyframes from {cfg.heldout_episodes} more per variation (seeds from 50000); 4 cameras at "
+        f"{cfg.image_size}²; one multi-task `small` policy, {' '.join(f'`{a}`' for a in cfg.policy_args)}, "
+        f"{cfg.steps} `lerobot-train` steps × batch {cfg.batch_size}, CPU; closed loop: `sigma-eval`, "
+        f"{cfg.eval_episodes} episodes per variation (seeds from 100000), ≤ {cfg.max_keyframes} keyframes. "
+        "Errors are medians over every keyframe with a goal at the last checkpoint; yaw is the mean absolute error "
+        "of the yaw bin. One column (first table) and one row (second) per training seed.\n\n"
+    )
+    seeds = " | ".join(f"seed {r['seed']}" for r in results)
+    lines = [f"| variation | {seeds} |", "|---" * (1 + len(results)) + "|"]
+    for k in names:
+        lines.append(f"| {k} | " + " | ".join(cell(*n["variations"][k]) for n in rows) + " |")
+    summary = [
+        "",
+        "| seed | train cm | held-out cm | held-out ≤ 1 cm | held-out yaw ° | gripper | all (95% CI) | failures "
+        "| train min | eval min |",
+        "|---" * 10 + "|",
+    ]
+    for r, n in zip(results, rows, strict=True):
+        fails = ", ".join(f"{k} {c}" for k, c in sorted(n["failures"].items(), key=lambda kv: -kv[1])) or "-"
+        summary.append(
+            f"| {r['seed']} | {n['train_cm']:.2f} | {n['held_cm']:.2f} | {100 * n['held_1cm']:.0f}% "
+            f"| {n['held_yaw']:.1f} | {100 * n['held_grip']:.0f}% "
+            f"| **{cell(n['successes'], n['episodes'], n['ci95'])}** | {fails} "
+            f"| {r['train_seconds'] / 60:.0f} | {r['eval'].get('seconds', float('nan')) / 60:.0f} |"
+        )
+    return head + "\n".join(lines + summary) + "\n"
+
+
+def main(argv: list[str] | None = None) -> int:
+    from pipelines.reporting import RESULTS_DIR, write_report
+
+    cfg = draccus.parse(SuiteBenchConfig, args=sys.argv[1:] if argv is None else argv)
+    if not cfg.seeds:
+        raise ValueError("--seeds must name at least one training seed")
+    import sigma_data  # noqa: F401  (MUJOCO_GL before robosuite)
+
+    train_root, held_root = collect_data(cfg)
+    results = [run_one(cfg, seed, train_root, held_root) for seed in cfg.seeds]
+    table = markdown(cfg, results)
+    print(table)
+    if cfg.publish:
+        from benchmarks.bench_demos import numbers
+
+        data = [{k: v for k, v in r.items() if k != "eval"} | {"numbers": numbers(r)} for r in results]
+        write_report(
+            "suite",
+            "The suite on 2 CPU cores: one multi-task policy, every variation",
+            table,
+            data,
+            results_dir=Path(cfg.results_dir or RESULTS_DIR),
+        )
+    from benchmarks.bench_demos import numbers
+
+    pooled = [numbers(r) for r in results]
+    print(
+        f"bench_suite: {len(results)} run(s); "
+        + "; ".join(
+            f"seed {r['seed']}: {n['successes']}/{n['episodes']}"
+            for r, n in zip(results, pooled, strict=True)
+        )
+        + f" -> {cfg.output_dir}"
+    )
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

@@ -1,0 +1,47 @@
+"""One benchmark training run, resumable stage by stage: ``lerobot-train`` (unless its checkpoint is there),
+``sigma-diagnose`` on every checkpoint, ``sigma-eval`` closed loop (unless its results are there). Shared by the
+learning and demonstrations benchmarks."""
+
+from __future__ import annotations
+
+import json
+import time
+from pathlib import Path
+from typing import Any
+
+from pipelines.training import TrainRun
+
+
+def train_diagnose_evaluate(
+    run: TrainRun, run_dir: Path, heldout_root: Path, tasks: list[str], label: str, **eval_options: Any
+) -> dict:
+    """Train ``run`` (its log and wall time in ``run_dir``), diagnose it on its training keyframes and on
+    ``heldout_root``, evaluate it on ``tasks`` (``eval_options``: further ``EvalConfig`` fields). Returns
+    ``train_seconds``, ``diagnostics`` and ``eval`` (the evaluation summary)."""
+    from pipelines.diagnostics import DiagnoseConfig, run_diagnose
+    from pipelines.evaluate import EvalConfig, run_eval
+    from pipelines.training import train
+
+    record = run_dir / "train_seconds.json"
+    if run.reuse_or_clear(record, label) is None:
+        print(f"{label}: lerobot-train {' '.join(run.extra_args)}", flush=True)
+        _, seconds = train(run, log_path=run_dir / "train.log")
+        record.write_text(json.dumps({"seconds": seconds}))
+    diagnostics = run_diagnose(DiagnoseConfig(run=run.output_dir, heldout_root=heldout_root, max_frames=200))
+    results = run_dir / "eval" / "results.json"
+    if results.exists():
+        summary = json.loads(results.read_text())
+    else:
+        t0 = time.perf_counter()
+        summary = run_eval(
+            EvalConfig(
+                checkpoint=run.checkpoint,
+                tasks=tasks,
+                train_dataset=run.dataset_root,
+                output_dir=run_dir / "eval",
+                **eval_options,
+            )
+        )
+        print(f"{label}: evaluated in {time.perf_counter() - t0:.0f} s", flush=True)
+    seconds = json.loads(record.read_text())["seconds"]
+    return {"train_seconds": seconds, "diagnostics": diagnostics, "eval": summary}

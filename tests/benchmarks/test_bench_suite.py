@@ -1,0 +1,40 @@
+"""The suite benchmark's table: one column per training seed, a row per variation, pooled numbers per seed."""
+
+from __future__ import annotations
+
+from benchmarks.bench_suite import SuiteBenchConfig, markdown
+
+
+def _result(seed: int, successes: dict[str, int]) -> dict:
+    stats = {"trans_cm_median": 0.4, "within_1cm": 0.9, "yaw_deg_mean": 10.0, "gripper_acc": 1.0}
+    variations = [
+        {
+            "task": name.split(":")[0],
+            "variation": name.split(":")[1],
+            "successes": s,
+            "episodes": 20,
+            "ci95": [0.1, 0.9],
+            "failures": {"dropped": 20 - s} if s < 20 else {},
+        }
+        for name, s in successes.items()
+    ]
+    return {
+        "seed": seed,
+        "train_seconds": 3600.0,
+        "diagnostics": {"checkpoints": [{"train": {"all": stats}, "heldout": {"all": stats}}]},
+        "eval": {"variations": variations, "seconds": 900.0},
+    }
+
+
+def test_markdown_has_a_column_per_seed_and_pooled_rows():
+    cfg = SuiteBenchConfig(tasks=["lift", "stack"], seeds=[0, 1])
+    results = [
+        _result(0, {"lift:lift_cube": 20, "stack:red_on_green": 15}),
+        _result(1, {"lift:lift_cube": 19, "stack:red_on_green": 12}),
+    ]
+    text = markdown(cfg, results)
+    assert "| variation | seed 0 | seed 1 |" in text
+    assert "| lift:lift_cube | 20/20 (10–90%) | 19/20 (10–90%) |" in text
+    assert "| 0 | 0.40 | 0.40 | 90% | 10.0 | 100% | **35/40" in text
+    assert "dropped 5" in text and "dropped 9" in text and "| 60 | 15 |" in text
+    assert "--policy.per_task_bounds=true" in text
