@@ -11,7 +11,7 @@ Numbers come only from those runs.
 
     sigma-results                                  # collect, loader, renderer, policy (~30 min on 2 CPU cores)
     sigma-results --include_slow true              # also experts (~45 min), learning (~45 min), demos (~50 min),
-                                                   # ablation (~1 h), compare (~50 min)
+                                                   # suite (~2 h, planned), ablation (~1 h), compare (~50 min)
     sigma-results --stitch_only true               # run nothing, only rebuild RESULTS.md
     sigma-results --only loader,policy             # comma-separated names (also --skip)
     sigma-results --only loader --extra_args '{"loader": "--samples 5"}'   # flags appended to a command
@@ -85,6 +85,13 @@ BENCHMARKS: tuple[Benchmark, ...] = (
         "python -m benchmarks.bench_demos",
         slow=True,
     ),
+    # Planned ~2 h: Lift, Stack, PickPlace and NutAssembly, one 6000-step lerobot-train run, 20 episodes per variation.
+    Benchmark(
+        "suite",
+        "The suite on 2 CPU cores: one small policy on Lift, Stack, PickPlace and NutAssembly",
+        "python -m benchmarks.bench_suite",
+        slow=True,
+    ),
     # Times: measured on the project's 2-core machine while it was busy with training runs (quiet: less).
     # collect ~20 min (the robosuite-camera baseline alone ~25 s per episode).
     Benchmark(
@@ -118,8 +125,8 @@ NAMES = tuple(b.name for b in BENCHMARKS)
 class ResultsConfig:
     """Options of ``sigma-results``."""
 
-    # Run only these benchmarks, comma-separated (experts, ablation, compare, learning, demos, collect, loader,
-    # renderer, policy); "" = all fast ones (plus the slow ones with --include_slow true).
+    # Run only these benchmarks, comma-separated (experts, ablation, compare, learning, demos, suite, collect,
+    # loader, renderer, policy); "" = all fast ones (plus the slow ones with --include_slow true).
     only: str = ""
     # Never run these, comma-separated.
     skip: str = ""
@@ -221,7 +228,8 @@ def stitch(results_dir: Path, failures: dict[str, tuple[int, str]] | None = None
         "run. Absolute times depend on the machine and its load: compare ratios, or runs on the same machine.",
         "",
         "Regenerate with one command: `sigma-results` (the fast benchmarks, ~30 min on 2 CPU cores, then this file);",
-        "`sigma-results --include_slow true` also re-runs the expert, learning and ablation runs; `sigma-results "
+        "`sigma-results --include_slow true` also re-runs the slow ones (experts, learning, demonstrations, suite, "
+        "ablation, comparison); `sigma-results "
         "--stitch_only true` only rebuilds this file from `benchmarks/results/`.",
         "",
         f"Stitched on: {machine_description()}; {time.strftime('%Y-%m-%d')}.",

@@ -43,6 +43,7 @@ def test_stitch_orders_sections_names_missing_and_failed_ones(tmp_path):
         "compare",
         "learning",
         "demos",
+        "suite",
         "collect",
         "loader",
         "renderer",
