@@ -53,26 +53,18 @@ class DemosBenchConfig:
 
 
 def collect_data(cfg: DemosBenchConfig) -> tuple[Path, Path]:
-    from pipelines.collecting import collect_demonstrations
+    from benchmarks.training_runs import collect_train_and_heldout
 
-    roots = []
-    for where, episodes, start in (("train", max(cfg.demos), 0), ("heldout", cfg.heldout_episodes, 50_000)):
-        out = cfg.output_dir / where
-        done = out / "data" / "keyframe"
-        if not (done / "meta" / "info.json").exists():
-            collect_demonstrations(
-                out,
-                cfg.tasks,
-                episodes,
-                cfg.cameras,
-                cfg.image_size,
-                cfg.workers,
-                f"local/demos_{where}",
-                dense=False,
-                start_seed=start,
-            )
-        roots.append(done)
-    return roots[0], roots[1]
+    return collect_train_and_heldout(
+        cfg.output_dir,
+        cfg.tasks,
+        max(cfg.demos),
+        cfg.heldout_episodes,
+        cfg.cameras,
+        cfg.image_size,
+        cfg.workers,
+        "demos",
+    )
 
 
 def first_seeds(root: Path, n: int) -> list[int]:

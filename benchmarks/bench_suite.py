@@ -66,26 +66,18 @@ class SuiteBenchConfig:
 
 
 def collect_data(cfg: SuiteBenchConfig) -> tuple[Path, Path]:
-    from pipelines.collecting import collect_demonstrations
+    from benchmarks.training_runs import collect_train_and_heldout
 
-    roots = []
-    for where, episodes, start in (("train", cfg.episodes, 0), ("heldout", cfg.heldout_episodes, 50_000)):
-        out = cfg.output_dir / where
-        done = out / "data" / "keyframe"
-        if not (done / "meta" / "info.json").exists():
-            collect_demonstrations(
-                out,
-                cfg.tasks,
-                episodes,
-                cfg.cameras,
-                cfg.image_size,
-                cfg.workers,
-                f"local/suite_{where}",
-                dense=False,
-                start_seed=start,
-            )
-        roots.append(done)
-    return roots[0], roots[1]
+    return collect_train_and_heldout(
+        cfg.output_dir,
+        cfg.tasks,
+        cfg.episodes,
+        cfg.heldout_episodes,
+        cfg.cameras,
+        cfg.image_size,
+        cfg.workers,
+        "suite",
+    )
 
 
 def run_one(cfg: SuiteBenchConfig, seed: int, train_root: Path, held_root: Path) -> dict:

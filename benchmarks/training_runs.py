@@ -45,3 +45,37 @@ def train_diagnose_evaluate(
         print(f"{label}: evaluated in {time.perf_counter() - t0:.0f} s", flush=True)
     seconds = json.loads(record.read_text())["seconds"]
     return {"train_seconds": seconds, "diagnostics": diagnostics, "eval": summary}
+
+
+def collect_train_and_heldout(
+    output_dir: Path,
+    tasks: list[str],
+    train_episodes: int,
+    heldout_episodes: int,
+    cameras: list[str],
+    image_size: int,
+    workers: int,
+    name: str,
+) -> tuple[Path, Path]:
+    """Keyframe datasets of training seeds (from 0) and held-out seeds (from 50000) under ``output_dir``/train and
+    /heldout; a finished one is reused. Returns the two dataset roots."""
+    from pipelines.collecting import collect_demonstrations
+
+    roots = []
+    for where, episodes, start in (("train", train_episodes, 0), ("heldout", heldout_episodes, 50_000)):
+        out = output_dir / where
+        done = out / "data" / "keyframe"
+        if not (done / "meta" / "info.json").exists():
+            collect_demonstrations(
+                out,
+                tasks,
+                episodes,
+                cameras,
+                image_size,
+                workers,
+                f"local/{name}_{where}",
+                dense=False,
+                start_seed=start,
+            )
+        roots.append(done)
+    return roots[0], roots[1]
