@@ -14,10 +14,16 @@ box, PickPlace and NutAssembly in theirs, so adding tasks does not coarsen the v
 
     python -m benchmarks.bench_suite                        # one training seed
     python -m benchmarks.bench_suite --seeds '[0,1]'        # both seeds
+    python -m benchmarks.bench_suite --schedule_steps 2000  # the small preset's own schedule (the first run)
 
-Budget: 6000 steps of the ``small`` preset train in about 90 minutes on the 2-core Xeon (0.87 s per
-``lerobot-train`` step measured in ``make demo``), planned to fit two hours with collection and evaluation; a
-whole run has not been timed yet (RESULTS.md says so until it is).
+The learning rate follows the ``small`` preset's cosine schedule stretched over the whole run
+(``--policy.scheduler_decay_steps`` = ``--steps``) unless ``--schedule_steps`` says otherwise: the preset's own
+2000 steps leave a 6000-step run at the floor (lr/100) for its last 4000 steps, which is what the first measured
+run did (RESULTS.md). Each schedule trains into its own run directory (``runs/seed<S>_decay<D>``).
+
+Budget: 6000 steps of the ``small`` preset in bf16 autocast (``--policy.use_cpu_bf16_autocast``, a no-op on CPUs
+without native bf16) trained in 62 minutes on the 2-core AMD EPYC (2026-11-25, before the decoded-row cache that took ``make demo``'s
+step from 0.61 to 0.52 s); collection took 8 minutes and evaluation 6 (RESULTS.md).
 """
 
 from __future__ import annotations
@@ -34,7 +40,7 @@ from sigma_data.cameras import DEFAULT_CAMERAS
 os.environ.setdefault("HF_HUB_OFFLINE", "1")
 
 # What the suite trains with beyond the small preset (see docs/learning.md).
-SUITE_ARGS = ["--policy.per_task_bounds=true"]
+SUITE_ARGS = ["--policy.per_task_bounds=true", "--policy.use_cpu_bf16_autocast=true"]
 
 
 @dataclass
@@ -54,6 +60,8 @@ class SuiteBenchConfig:
     checkpoints: int = 4
     # One training run per seed.
     seeds: list[int] = field(default_factory=lambda: [0])
+    # Steps of the cosine learning-rate decay (--policy.scheduler_decay_steps); None: the whole run (`steps`).
+    schedule_steps: int | None = None
     # lerobot-train arguments beyond the small preset.
     policy_args: list[str] = field(default_factory=lambda: list(SUITE_ARGS))
     # Closed-loop episodes per variation (seeds from 100000) and keyframes per episode.
@@ -86,7 +94,8 @@ def run_one(cfg: SuiteBenchConfig, seed: int, train_root: Path, held_root: Path)
     from pipelines.training import TrainRun
     from sigma_data.suite import scene_bounds
 
-    run_dir = cfg.output_dir / "runs" / f"seed{seed}"
+    decay = cfg.schedule_steps or cfg.steps
+    run_dir = cfg.output_dir / "runs" / f"seed{seed}_decay{decay}"
     run = TrainRun(
         dataset_root=train_root,
         output_dir=run_dir / "train",
@@ -96,7 +105,7 @@ def run_one(cfg: SuiteBenchConfig, seed: int, train_root: Path, held_root: Path)
         seed=seed,
         job_name=f"suite_seed{seed}",
         save_freq=max(1, cfg.steps // cfg.checkpoints),
-        extra_args=list(cfg.policy_args),
+        extra_args=[*cfg.policy_args, f"--policy.scheduler_decay_steps={decay}"],
     )
     done = train_diagnose_evaluate(
         run,
@@ -120,7 +129,8 @@ def markdown(cfg: SuiteBenchConfig, results: list[dict]) -> str:
         f"Tasks {', '.join(cfg.tasks)}: {cfg.episodes} demonstrations per variation (seeds from 0), held-out "
         f"keyframes from {cfg.heldout_episodes} more per variation (seeds from 50000); 4 cameras at "
         f"{cfg.image_size}²; one multi-task `small` policy, {' '.join(f'`{a}`' for a in cfg.policy_args)}, "
-        f"{cfg.steps} `lerobot-train` steps × batch {cfg.batch_size}, CPU; closed loop: `sigma-eval`, "
+        f"{cfg.steps} `lerobot-train` steps × batch {cfg.batch_size} with the cosine learning-rate decay over "
+        f"{cfg.schedule_steps or cfg.steps} steps, CPU; closed loop: `sigma-eval`, "
         f"{cfg.eval_episodes} episodes per variation (seeds from 100000), ≤ {cfg.max_keyframes} keyframes. "
         "Errors are medians over every keyframe with a goal at the last checkpoint; yaw is the mean absolute error "
         "of the yaw bin. One column (first table) and one row (second) per training seed.\n\n"

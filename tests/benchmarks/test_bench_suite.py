@@ -38,3 +38,6 @@ def test_markdown_has_a_column_per_seed_and_pooled_rows():
     assert "| 0 | 0.40 | 0.40 | 90% | 10.0 | 100% | **35/40" in text
     assert "dropped 5" in text and "dropped 9" in text and "| 60 | 15 |" in text
     assert "--policy.per_task_bounds=true" in text
+    assert "decay over 6000 steps" in text  # the schedule stretched over the whole run by default
+    short = markdown(SuiteBenchConfig(tasks=["lift"], schedule_steps=2000), results[:1])
+    assert "decay over 2000 steps" in short

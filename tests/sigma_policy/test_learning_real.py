@@ -61,32 +61,24 @@ def test_small_recipe_fits_real_robosuite_keyframes_and_generalises(tmp_path):
         assert lift_step["trans_cm_median"] < 3.0, (name, lift_step)
 
 
+# Training steps of the rotation test: at 400, 48% (local features) and 31% (none) of draws were within 10°.
+ROTATION_STEPS = 800
+
+
 def _box() -> dict:
     return {"scene_bounds": list(scene_bounds(["lift"]))}
 
 
 @pytest.mark.slow
-@pytest.mark.parametrize(
-    "local_channels",
-    [
-        pytest.param(
-            0,
-            marks=pytest.mark.xfail(
-                strict=True,
-                reason="without the heads' local features: after 400 steps 31% of draws within 10° (chance "
-                "~22%; docs/learning.md). Strict: this fails loudly once rotation is learned without them.",
-            ),
-        ),
-        16,
-    ],
-)
+@pytest.mark.parametrize("local_channels", [0, 16])
 def test_rotation_is_learnable_under_yaw_augmentation(tmp_path, local_channels):
     """With ±45° yaw augmentation every training sample shows the scene turned about its target and a target yaw
     turned with it; the rotation head must read the turn from the rendered views (no proprio token: the gripper's
     own orientation would give the answer away). After training, on fresh augmentation draws, the predicted yaw bin
     is within 10° of the augmented target far more often than chance (a constant guess is within 10° of a uniform
     ±45° yaw about 22% of the time). The heads' local features (``local_channels``), pooled at the predicted
-    position, see the cube's outline; the token features alone do not learn it in this budget."""
+    position, see the cube's outline and learn it faster; the token features alone (``local_channels=0``) get
+    there too within this budget (docs/learning.md)."""
     from sigma_policy.augmentation import se3_augment
     from sigma_policy.rotation import _gimbal_fixed_euler
 
@@ -105,7 +97,7 @@ def test_rotation_is_learnable_under_yaw_augmentation(tmp_path, local_channels):
         local_channels=local_channels,
     )
     idx = sample_indices(ds)
-    train(policy, pre, ds, idx, steps=400)
+    train(policy, pre, ds, idx, steps=ROTATION_STEPS)
 
     gen = torch.Generator().manual_seed(123)
     hits, total = 0, 0

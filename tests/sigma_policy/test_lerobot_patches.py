@@ -38,15 +38,59 @@ def test_patched_query_matches_lerobot_original(tmp_path):
 
     # The whole item: the patched get_item (current row read without the queried columns) equals LeRobot's.
     assert DatasetReader.get_item is lerobot_patches._get_item_without_double_decode
+    # A second pass reads every sample from the decoded-row cache: still the same items.
     original_get_item = lerobot_patches._get_item_without_double_decode.original
+    for _ in range(2):
+        for idx in range(len(ds)):
+            _assert_same_item(reader.get_item(idx), original_get_item(reader, idx), idx)
+    assert lerobot_patches._CACHES[reader].used > 0
+
+
+def _assert_same_item(fast: dict, slow: dict, idx: int) -> None:
+    assert fast.keys() == slow.keys(), idx
+    for key, value in slow.items():
+        if torch.is_tensor(value):
+            assert fast[key].dtype == value.dtype and torch.equal(fast[key], value), (idx, key)
+        else:
+            assert fast[key] == value, (idx, key)
+
+
+def _tiny_goal_dataset(tmp_path) -> LeRobotDataset:
+    root = write_tiny_keyframe_dataset(tmp_path / "ds")
+    features = LeRobotDataset("local/tiny", root=root, video_backend="pyav").features
+    keys = [k for k in features if k.startswith("observation.")]
+    return LeRobotDataset(
+        "local/tiny", root=root, delta_timestamps={k: [0.0, 0.05] for k in keys}, video_backend="pyav"
+    )
+
+
+def test_read_cache_keeps_decoded_rows_within_its_budget(tmp_path, monkeypatch):
+    """Cached reads are the first reads' tensors, never more than SIGMA_READ_CACHE_MB is kept, 0 turns it off,
+    and what a caller adds to a returned item does not leak into the next read."""
+    assert lerobot_patches.install()
+    ds = _tiny_goal_dataset(tmp_path)
+    first = [ds[i] for i in range(len(ds))]
+    reader = ds._ensure_reader()
+    full = lerobot_patches._CACHES[reader]
+    assert full.used > 0 and len(full.items) > 0
+    first[0]["added_by_caller"] = 1
     for idx in range(len(ds)):
-        fast, slow = reader.get_item(idx), original_get_item(reader, idx)
-        assert fast.keys() == slow.keys(), idx
-        for key, value in slow.items():
-            if torch.is_tensor(value):
-                assert fast[key].dtype == value.dtype and torch.equal(fast[key], value), (idx, key)
-            else:
-                assert fast[key] == value, (idx, key)
+        _assert_same_item(
+            ds[idx], first[idx] if idx else {k: v for k, v in first[0].items() if k != "added_by_caller"}, idx
+        )
+
+    monkeypatch.setenv("SIGMA_READ_CACHE_MB", str(full.used / 2 / 2**20))
+    small = _tiny_goal_dataset(tmp_path / "small")
+    items = [small[i] for i in range(len(small))]
+    cache = lerobot_patches._CACHES[small._ensure_reader()]
+    assert 0 < cache.used <= full.used / 2
+    for idx in range(len(small)):
+        _assert_same_item(small[idx], items[idx], idx)
+
+    monkeypatch.setenv("SIGMA_READ_CACHE_MB", "0")
+    off = _tiny_goal_dataset(tmp_path / "off")
+    _assert_same_item(off[1], items[1], 1)
+    assert off._ensure_reader() not in lerobot_patches._CACHES
 
 
 def test_a_spawned_worker_gets_the_patch_with_the_dataset(tmp_path):
