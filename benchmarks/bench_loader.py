@@ -16,6 +16,7 @@ import tempfile
 import time
 from dataclasses import dataclass
 from pathlib import Path
+from unittest import mock
 
 os.environ.setdefault("HF_HUB_OFFLINE", "1")
 
@@ -86,17 +87,12 @@ def _bench(cfg: LoaderBenchConfig, root: Path, described: str) -> str:
         sigma installs them)."""
         for name, fn in methods.items():
             setattr(DatasetReader, name, fn)
-        cache = os.environ.get("SIGMA_READ_CACHE_MB")
-        os.environ["SIGMA_READ_CACHE_MB"] = "0"
         try:
-            return _per_item_ms(load(deltas), cfg.samples)
+            with mock.patch.dict(os.environ, {"SIGMA_READ_CACHE_MB": "0"}):
+                return _per_item_ms(load(deltas), cfg.samples)
         finally:
             for name, fn in patched.items():
                 setattr(DatasetReader, name, fn)
-            if cache is None:
-                os.environ.pop("SIGMA_READ_CACHE_MB")
-            else:
-                os.environ["SIGMA_READ_CACHE_MB"] = cache
 
     stock = timed(**stock_methods)
     grouped = timed(get_item=stock_methods["get_item"])

@@ -22,8 +22,8 @@ The learning rate follows the ``small`` preset's cosine schedule stretched over 
 run did (RESULTS.md). Each schedule trains into its own run directory (``runs/seed<S>_decay<D>``).
 
 Budget: 6000 steps of the ``small`` preset in bf16 autocast (``--policy.use_cpu_bf16_autocast``, a no-op on CPUs
-without native bf16) trained in 62 minutes on the 2-core AMD EPYC (2026-11-25, before the decoded-row cache that took ``make demo``'s
-step from 0.61 to 0.52 s); collection took 8 minutes and evaluation 6 (RESULTS.md).
+without native bf16) trained in 62 minutes on the 2-core AMD EPYC (2026-11-25, before the decoded-row cache that
+took ``make demo``'s step from 0.61 to 0.52 s); collection took 8 minutes and evaluation 6 (RESULTS.md).
 """
 
 from __future__ import annotations
@@ -72,6 +72,11 @@ class SuiteBenchConfig:
     publish: bool = True
     results_dir: Path | None = None
 
+    @property
+    def decay_steps(self) -> int:
+        """Steps of the learning-rate decay: ``schedule_steps``, else the whole run."""
+        return self.schedule_steps or self.steps
+
 
 def collect_data(cfg: SuiteBenchConfig) -> tuple[Path, Path]:
     from benchmarks.training_runs import collect_train_and_heldout
@@ -94,8 +99,7 @@ def run_one(cfg: SuiteBenchConfig, seed: int, train_root: Path, held_root: Path)
     from pipelines.training import TrainRun
     from sigma_data.suite import scene_bounds
 
-    decay = cfg.schedule_steps or cfg.steps
-    run_dir = cfg.output_dir / "runs" / f"seed{seed}_decay{decay}"
+    run_dir = cfg.output_dir / "runs" / f"seed{seed}_decay{cfg.decay_steps}"
     run = TrainRun(
         dataset_root=train_root,
         output_dir=run_dir / "train",
@@ -105,7 +109,7 @@ def run_one(cfg: SuiteBenchConfig, seed: int, train_root: Path, held_root: Path)
         seed=seed,
         job_name=f"suite_seed{seed}",
         save_freq=max(1, cfg.steps // cfg.checkpoints),
-        extra_args=[*cfg.policy_args, f"--policy.scheduler_decay_steps={decay}"],
+        extra_args=[*cfg.policy_args, f"--policy.scheduler_decay_steps={cfg.decay_steps}"],
     )
     done = train_diagnose_evaluate(
         run,
@@ -130,7 +134,7 @@ def markdown(cfg: SuiteBenchConfig, results: list[dict]) -> str:
         f"keyframes from {cfg.heldout_episodes} more per variation (seeds from 50000); 4 cameras at "
         f"{cfg.image_size}²; one multi-task `small` policy, {' '.join(f'`{a}`' for a in cfg.policy_args)}, "
         f"{cfg.steps} `lerobot-train` steps × batch {cfg.batch_size} with the cosine learning-rate decay over "
-        f"{cfg.schedule_steps or cfg.steps} steps, CPU; closed loop: `sigma-eval`, "
+        f"{cfg.decay_steps} steps, CPU; closed loop: `sigma-eval`, "
         f"{cfg.eval_episodes} episodes per variation (seeds from 100000), ≤ {cfg.max_keyframes} keyframes. "
         "Errors are medians over every keyframe with a goal at the last checkpoint; yaw is the mean absolute error "
         "of the yaw bin. One column (first table) and one row (second) per training seed.\n\n"

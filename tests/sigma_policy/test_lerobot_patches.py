@@ -15,15 +15,8 @@ def test_patched_query_matches_lerobot_original(tmp_path):
     assert DatasetReader._query_hf_dataset is lerobot_patches._grouped_query_hf_dataset
     original = lerobot_patches._grouped_query_hf_dataset.original
 
-    root = write_tiny_keyframe_dataset(tmp_path / "ds")
-    ds = LeRobotDataset("local/tiny", root=root, delta_timestamps=None, video_backend="pyav")
+    ds = _tiny_goal_dataset(tmp_path)
     keys = [k for k in ds.features if k.startswith("observation.")]
-    ds = LeRobotDataset(
-        "local/tiny",
-        root=root,
-        delta_timestamps={k: [0.0, 1 / ds.fps] for k in keys},
-        video_backend="pyav",
-    )
     reader = ds._ensure_reader()
     for idx in (0, 3, len(ds) - 1):  # the last frame's goal index is clamped to itself
         ep = int(ds.hf_dataset[idx]["episode_index"])
@@ -56,11 +49,15 @@ def _assert_same_item(fast: dict, slow: dict, idx: int) -> None:
 
 
 def _tiny_goal_dataset(tmp_path) -> LeRobotDataset:
+    """A tiny keyframe dataset read as sigma reads it: every observation key at the current and the next frame."""
     root = write_tiny_keyframe_dataset(tmp_path / "ds")
-    features = LeRobotDataset("local/tiny", root=root, video_backend="pyav").features
-    keys = [k for k in features if k.startswith("observation.")]
+    plain = LeRobotDataset("local/tiny", root=root, video_backend="pyav")
+    keys = [k for k in plain.features if k.startswith("observation.")]
     return LeRobotDataset(
-        "local/tiny", root=root, delta_timestamps={k: [0.0, 0.05] for k in keys}, video_backend="pyav"
+        "local/tiny",
+        root=root,
+        delta_timestamps={k: [0.0, 1 / plain.fps] for k in keys},
+        video_backend="pyav",
     )
 
 
@@ -101,12 +98,7 @@ def test_a_spawned_worker_gets_the_patch_with_the_dataset(tmp_path):
     import sys
     from pathlib import Path
 
-    root = write_tiny_keyframe_dataset(tmp_path / "ds")
-    ds = LeRobotDataset("local/tiny", root=root, video_backend="pyav")
-    keys = [k for k in ds.features if k.startswith("observation.")]
-    ds = LeRobotDataset(
-        "local/tiny", root=root, delta_timestamps={k: [0.0, 1 / ds.fps] for k in keys}, video_backend="pyav"
-    )
+    ds = _tiny_goal_dataset(tmp_path)
     expected = ds[2]
     (tmp_path / "ds.pkl").write_bytes(pickle.dumps(ds))
     code = (
