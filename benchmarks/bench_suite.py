@@ -12,18 +12,19 @@ its last checkpoint (``--resume=true``).
 Each task keeps its own scene box (``--policy.per_task_bounds=true``): Lift and Stack are rendered in their 36 cm
 box, PickPlace and NutAssembly in theirs, so adding tasks does not coarsen the views of the others.
 
-    python -m benchmarks.bench_suite                        # one training seed
-    python -m benchmarks.bench_suite --seeds '[0,1]'        # both seeds
-    python -m benchmarks.bench_suite --schedule_steps 2000  # the small preset's own schedule (the first run)
+    python -m benchmarks.bench_suite                                  # one training seed
+    python -m benchmarks.bench_suite --seeds '[0,1]'                  # both seeds
+    python -m benchmarks.bench_suite --schedule_steps 2000 --lr null  # the small preset's own schedule (first run)
 
-The learning rate follows the ``small`` preset's cosine schedule stretched over the whole run
-(``--policy.scheduler_decay_steps`` = ``--steps``) unless ``--schedule_steps`` says otherwise: the preset's own
-2000 steps leave a 6000-step run at the floor (lr/100) for its last 4000 steps, which is what the first measured
-run did (RESULTS.md). Each schedule trains into its own run directory (``runs/seed<S>_decay<D>``).
+The learning rate peaks at 3e-3 (``--lr``; ``null`` keeps the ``small`` preset's 1e-2) and follows a cosine decay
+stretched over the whole run (``--policy.scheduler_decay_steps`` = ``--steps``) unless ``--schedule_steps`` says
+otherwise. On four tasks the preset's 1e-2 underfit with its own 2000-step decay (lr/100 for the last 4000 steps)
+and diverged with the decay stretched; 3e-3 fitted the training keyframes to 0.43 cm and scored 80/180
+(docs/learning.md). Each schedule trains into its own run directory (``runs/seed<S>_decay<D>[_lr<LR>]``).
 
 Budget: 6000 steps of the ``small`` preset in bf16 autocast (``--policy.use_cpu_bf16_autocast``, a no-op on CPUs
-without native bf16) trained in 62 minutes on the 2-core AMD EPYC (2026-11-25, before the decoded-row cache that
-took ``make demo``'s step from 0.61 to 0.52 s); collection took 8 minutes and evaluation 6 (RESULTS.md).
+without native bf16) trained in 56 minutes on the 2-core AMD EPYC (2026-11-25); collection took 8 minutes and
+evaluation 5 (RESULTS.md).
 """
 
 from __future__ import annotations
@@ -62,6 +63,8 @@ class SuiteBenchConfig:
     seeds: list[int] = field(default_factory=lambda: [0])
     # Steps of the cosine learning-rate decay (--policy.scheduler_decay_steps); None: the whole run (`steps`).
     schedule_steps: int | None = None
+    # Peak learning rate (--policy.optimizer_lr); None: the small preset's 1e-2, which diverged here (docs/learning.md).
+    lr: float | None = 3e-3
     # lerobot-train arguments beyond the small preset.
     policy_args: list[str] = field(default_factory=lambda: list(SUITE_ARGS))
     # Closed-loop episodes per variation (seeds from 100000) and keyframes per episode.
@@ -76,6 +79,12 @@ class SuiteBenchConfig:
     def decay_steps(self) -> int:
         """Steps of the learning-rate decay: ``schedule_steps``, else the whole run."""
         return self.schedule_steps or self.steps
+
+    @property
+    def schedule_args(self) -> list[str]:
+        """``lerobot-train`` arguments of the learning-rate schedule."""
+        lr = [f"--policy.optimizer_lr={self.lr:g}"] if self.lr else []
+        return [f"--policy.scheduler_decay_steps={self.decay_steps}", *lr]
 
 
 def collect_data(cfg: SuiteBenchConfig) -> tuple[Path, Path]:
@@ -99,7 +108,11 @@ def run_one(cfg: SuiteBenchConfig, seed: int, train_root: Path, held_root: Path)
     from pipelines.training import TrainRun
     from sigma_data.suite import scene_bounds
 
-    run_dir = cfg.output_dir / "runs" / f"seed{seed}_decay{cfg.decay_steps}"
+    run_dir = (
+        cfg.output_dir
+        / "runs"
+        / (f"seed{seed}_decay{cfg.decay_steps}" + (f"_lr{cfg.lr:g}" if cfg.lr else ""))
+    )
     run = TrainRun(
         dataset_root=train_root,
         output_dir=run_dir / "train",
@@ -109,7 +122,7 @@ def run_one(cfg: SuiteBenchConfig, seed: int, train_root: Path, held_root: Path)
         seed=seed,
         job_name=f"suite_seed{seed}",
         save_freq=max(1, cfg.steps // cfg.checkpoints),
-        extra_args=[*cfg.policy_args, f"--policy.scheduler_decay_steps={cfg.decay_steps}"],
+        extra_args=[*cfg.policy_args, *cfg.schedule_args],
     )
     done = train_diagnose_evaluate(
         run,
@@ -133,8 +146,8 @@ def markdown(cfg: SuiteBenchConfig, results: list[dict]) -> str:
         f"Tasks {', '.join(cfg.tasks)}: {cfg.episodes} demonstrations per variation (seeds from 0), held-out "
         f"keyframes from {cfg.heldout_episodes} more per variation (seeds from 50000); 4 cameras at "
         f"{cfg.image_size}²; one multi-task `small` policy, {' '.join(f'`{a}`' for a in cfg.policy_args)}, "
-        f"{cfg.steps} `lerobot-train` steps × batch {cfg.batch_size} with the cosine learning-rate decay over "
-        f"{cfg.decay_steps} steps, CPU; closed loop: `sigma-eval`, "
+        f"{cfg.steps} `lerobot-train` steps × batch {cfg.batch_size}, peak learning rate {cfg.lr or 1e-2:g} and its "
+        f"cosine decay over {cfg.decay_steps} steps, CPU; closed loop: `sigma-eval`, "
         f"{cfg.eval_episodes} episodes per variation (seeds from 100000), ≤ {cfg.max_keyframes} keyframes. "
         "Errors are medians over every keyframe with a goal at the last checkpoint; yaw is the mean absolute error "
         "of the yaw bin. One column (first table) and one row (second) per training seed.\n\n"

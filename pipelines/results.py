@@ -11,7 +11,7 @@ Numbers come only from those runs.
 
     sigma-results                                  # collect, loader, renderer, policy (~30 min on 2 CPU cores)
     sigma-results --include_slow true              # also experts (~45 min), learning (~45 min), demos (~50 min),
-                                                   # suite (~80 min), ablation (~1 h), compare (~50 min)
+                                                   # suite (~70 min per seed), ablation (~1 h), compare (~50 min)
     sigma-results --stitch_only true               # run nothing, only rebuild RESULTS.md
     sigma-results --only loader,policy             # comma-separated names (also --skip)
     sigma-results --only loader --extra_args '{"loader": "--samples 5"}'   # flags appended to a command
@@ -85,7 +85,7 @@ BENCHMARKS: tuple[Benchmark, ...] = (
         "python -m benchmarks.bench_demos",
         slow=True,
     ),
-    # ~80 min: Lift, Stack, PickPlace and NutAssembly, one 6000-step lerobot-train run, 20 episodes per variation.
+    # ~70 min: Lift, Stack, PickPlace and NutAssembly, one 6000-step lerobot-train run, 20 episodes per variation.
     Benchmark(
         "suite",
         "The suite on 2 CPU cores: one small policy on Lift, Stack, PickPlace and NutAssembly",

@@ -41,3 +41,13 @@ def test_markdown_has_a_column_per_seed_and_pooled_rows():
     assert "decay over 6000 steps" in text  # the schedule stretched over the whole run by default
     short = markdown(SuiteBenchConfig(tasks=["lift"], schedule_steps=2000), results[:1])
     assert "decay over 2000 steps" in short
+
+
+def test_learning_rate_option_reaches_lerobot_train_and_the_table():
+    lift = [_result(0, {"lift:lift_cube": 20})]
+    suite = SuiteBenchConfig(tasks=["lift"])
+    assert suite.schedule_args == ["--policy.scheduler_decay_steps=6000", "--policy.optimizer_lr=0.003"]
+    assert "peak learning rate 0.003" in markdown(suite, lift)
+    preset = SuiteBenchConfig(tasks=["lift"], lr=None)  # the small preset's own 1e-2
+    assert preset.schedule_args == ["--policy.scheduler_decay_steps=6000"]
+    assert "peak learning rate 0.01" in markdown(preset, lift)
