@@ -81,6 +81,18 @@ class SuiteBenchConfig:
         return self.schedule_steps or self.steps
 
     @property
+    def peak_lr(self) -> float:
+        """The peak learning rate: ``lr``, else the ``small`` preset's."""
+        from sigma_policy.configuration_sigma import PRESETS
+
+        return self.lr or PRESETS["small"]["optimizer_lr"]
+
+    def run_dir(self, seed: int) -> Path:
+        """Where training seed ``seed`` of this schedule trains, is diagnosed and is evaluated."""
+        lr = f"_lr{self.lr:g}" if self.lr else ""
+        return self.output_dir / "runs" / f"seed{seed}_decay{self.decay_steps}{lr}"
+
+    @property
     def schedule_args(self) -> list[str]:
         """``lerobot-train`` arguments of the learning-rate schedule."""
         lr = [f"--policy.optimizer_lr={self.lr:g}"] if self.lr else []
@@ -108,11 +120,7 @@ def run_one(cfg: SuiteBenchConfig, seed: int, train_root: Path, held_root: Path)
     from pipelines.training import TrainRun
     from sigma_data.suite import scene_bounds
 
-    run_dir = (
-        cfg.output_dir
-        / "runs"
-        / (f"seed{seed}_decay{cfg.decay_steps}" + (f"_lr{cfg.lr:g}" if cfg.lr else ""))
-    )
+    run_dir = cfg.run_dir(seed)
     run = TrainRun(
         dataset_root=train_root,
         output_dir=run_dir / "train",
@@ -146,7 +154,7 @@ def markdown(cfg: SuiteBenchConfig, results: list[dict]) -> str:
         f"Tasks {', '.join(cfg.tasks)}: {cfg.episodes} demonstrations per variation (seeds from 0), held-out "
         f"keyframes from {cfg.heldout_episodes} more per variation (seeds from 50000); 4 cameras at "
         f"{cfg.image_size}²; one multi-task `small` policy, {' '.join(f'`{a}`' for a in cfg.policy_args)}, "
-        f"{cfg.steps} `lerobot-train` steps × batch {cfg.batch_size}, peak learning rate {cfg.lr or 1e-2:g} and its "
+        f"{cfg.steps} `lerobot-train` steps × batch {cfg.batch_size}, peak learning rate {cfg.peak_lr:g} and its "
         f"cosine decay over {cfg.decay_steps} steps, CPU; closed loop: `sigma-eval`, "
         f"{cfg.eval_episodes} episodes per variation (seeds from 100000), ≤ {cfg.max_keyframes} keyframes. "
         "Errors are medians over every keyframe with a goal at the last checkpoint; yaw is the mean absolute error "
