@@ -15,6 +15,8 @@ box, PickPlace and NutAssembly in theirs, so adding tasks does not coarsen the v
     python -m benchmarks.bench_suite                                  # one training seed
     python -m benchmarks.bench_suite --seeds '[0,1]'                  # both seeds
     python -m benchmarks.bench_suite --schedule_steps 2000 --lr null  # the small preset's own schedule (first run)
+    python -m benchmarks.bench_suite --device cuda --workers 16 --output_dir outputs/bench_suite_gpu --publish false
+                                                                      # on a GPU (docs/gpu.md; not yet measured)
 
 The learning rate peaks at 3e-3 (``--lr``; ``null`` keeps the ``small`` preset's 1e-2) and follows a cosine decay
 stretched over the whole run (``--policy.scheduler_decay_steps`` = ``--steps``) unless ``--schedule_steps`` says
@@ -33,10 +35,14 @@ import os
 import sys
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import draccus
 
 from sigma_data.cameras import DEFAULT_CAMERAS
+
+if TYPE_CHECKING:
+    from pipelines.training import TrainRun
 
 os.environ.setdefault("HF_HUB_OFFLINE", "1")
 
@@ -70,7 +76,9 @@ class SuiteBenchConfig:
     # Closed-loop episodes per variation (seeds from 100000) and keyframes per episode.
     eval_episodes: int = 20
     max_keyframes: int = 16
+    # Collection and evaluation processes; the device that trains, diagnoses and evaluates (docs/gpu.md).
     workers: int = 2
+    device: str = "cpu"
     # Write benchmarks/results/suite.{md,json} (RESULTS.md includes them).
     publish: bool = True
     results_dir: Path | None = None
@@ -91,6 +99,24 @@ class SuiteBenchConfig:
         """Where training seed ``seed`` of this schedule trains, is diagnosed and is evaluated."""
         lr = f"_lr{self.lr:g}" if self.lr else ""
         return self.output_dir / "runs" / f"seed{seed}_decay{self.decay_steps}{lr}"
+
+    def train_run(self, seed: int, train_root: Path) -> TrainRun:
+        """The ``lerobot-train`` run of training seed ``seed`` on the dataset at ``train_root``."""
+        from pipelines.training import TrainRun
+        from sigma_data.suite import scene_bounds
+
+        return TrainRun(
+            dataset_root=train_root,
+            output_dir=self.run_dir(seed) / "train",
+            steps=self.steps,
+            batch_size=self.batch_size,
+            scene_bounds=scene_bounds(self.tasks),
+            seed=seed,
+            device=self.device,
+            job_name=f"suite_seed{seed}",
+            save_freq=max(1, self.steps // self.checkpoints),
+            extra_args=[*self.policy_args, *self.schedule_args],
+        )
 
     @property
     def schedule_args(self) -> list[str]:
@@ -117,23 +143,10 @@ def collect_data(cfg: SuiteBenchConfig) -> tuple[Path, Path]:
 def run_one(cfg: SuiteBenchConfig, seed: int, train_root: Path, held_root: Path) -> dict:
     """Train with ``seed`` (unless done; resumed if interrupted), diagnose, evaluate (unless done)."""
     from benchmarks.training_runs import train_diagnose_evaluate
-    from pipelines.training import TrainRun
-    from sigma_data.suite import scene_bounds
 
     run_dir = cfg.run_dir(seed)
-    run = TrainRun(
-        dataset_root=train_root,
-        output_dir=run_dir / "train",
-        steps=cfg.steps,
-        batch_size=cfg.batch_size,
-        scene_bounds=scene_bounds(cfg.tasks),
-        seed=seed,
-        job_name=f"suite_seed{seed}",
-        save_freq=max(1, cfg.steps // cfg.checkpoints),
-        extra_args=[*cfg.policy_args, *cfg.schedule_args],
-    )
     done = train_diagnose_evaluate(
-        run,
+        cfg.train_run(seed, train_root),
         run_dir,
         held_root,
         cfg.tasks,
@@ -155,7 +168,7 @@ def markdown(cfg: SuiteBenchConfig, results: list[dict]) -> str:
         f"keyframes from {cfg.heldout_episodes} more per variation (seeds from 50000); 4 cameras at "
         f"{cfg.image_size}²; one multi-task `small` policy, {' '.join(f'`{a}`' for a in cfg.policy_args)}, "
         f"{cfg.steps} `lerobot-train` steps × batch {cfg.batch_size}, peak learning rate {cfg.peak_lr:g} and its "
-        f"cosine decay over {cfg.decay_steps} steps, CPU; closed loop: `sigma-eval`, "
+        f"cosine decay over {cfg.decay_steps} steps, {cfg.device.upper()}; closed loop: `sigma-eval`, "
         f"{cfg.eval_episodes} episodes per variation (seeds from 100000), ≤ {cfg.max_keyframes} keyframes. "
         "Errors are medians over every keyframe with a goal at the last checkpoint; yaw is the mean absolute error "
         "of the yaw bin. One column (first table) and one row (second) per training seed.\n\n"

@@ -16,8 +16,8 @@ def train_diagnose_evaluate(
     run: TrainRun, run_dir: Path, heldout_root: Path, tasks: list[str], label: str, **eval_options: Any
 ) -> dict:
     """Train ``run`` (its log and wall time in ``run_dir``), diagnose it on its training keyframes and on
-    ``heldout_root``, evaluate it on ``tasks`` (``eval_options``: further ``EvalConfig`` fields). Returns
-    ``train_seconds``, ``diagnostics`` and ``eval`` (the evaluation summary)."""
+    ``heldout_root``, evaluate it on ``tasks`` (``eval_options``: further ``EvalConfig`` fields), all three on
+    ``run.device``. Returns ``train_seconds``, ``diagnostics`` and ``eval`` (the evaluation summary)."""
     from pipelines.diagnostics import DiagnoseConfig, run_diagnose
     from pipelines.evaluate import EvalConfig, run_eval
     from pipelines.training import train
@@ -27,7 +27,9 @@ def train_diagnose_evaluate(
         print(f"{label}: lerobot-train {' '.join(run.extra_args)}", flush=True)
         _, seconds = train(run, log_path=run_dir / "train.log")
         record.write_text(json.dumps({"seconds": seconds}))
-    diagnostics = run_diagnose(DiagnoseConfig(run=run.output_dir, heldout_root=heldout_root, max_frames=200))
+    diagnostics = run_diagnose(
+        DiagnoseConfig(run=run.output_dir, heldout_root=heldout_root, max_frames=200, device=run.device)
+    )
     results = run_dir / "eval" / "results.json"
     if results.exists():
         summary = json.loads(results.read_text())
@@ -39,6 +41,7 @@ def train_diagnose_evaluate(
                 tasks=tasks,
                 train_dataset=run.dataset_root,
                 output_dir=run_dir / "eval",
+                device=run.device,
                 **eval_options,
             )
         )

@@ -51,3 +51,13 @@ def test_learning_rate_option_reaches_lerobot_train_and_the_table():
     preset = SuiteBenchConfig(tasks=["lift"], lr=None)  # the small preset's own 1e-2
     assert preset.schedule_args == ["--policy.scheduler_decay_steps=6000"]
     assert "peak learning rate 0.01" in markdown(preset, lift)
+
+
+def test_device_option_reaches_lerobot_train_and_the_table(tmp_path):
+    gpu = SuiteBenchConfig(tasks=["lift"], device="cuda", output_dir=tmp_path)
+    command = gpu.train_run(1, tmp_path / "keyframe").command()
+    assert "--policy.device=cuda" in command and "--seed=1" in command
+    assert f"--output_dir={tmp_path / 'runs' / 'seed1_decay6000_lr0.003' / 'train'}" in command
+    assert "--policy.optimizer_lr=0.003" in command and "--policy.per_task_bounds=true" in command
+    assert ", CUDA; closed loop" in markdown(gpu, [_result(1, {"lift:lift_cube": 20})])
+    assert "--policy.device=cpu" in SuiteBenchConfig(tasks=["lift"]).train_run(0, tmp_path).command()
