@@ -60,4 +60,5 @@ def test_device_option_reaches_lerobot_train_and_the_table(tmp_path):
     assert f"--output_dir={tmp_path / 'runs' / 'seed1_decay6000_lr0.003' / 'train'}" in command
     assert "--policy.optimizer_lr=0.003" in command and "--policy.per_task_bounds=true" in command
     assert ", CUDA; closed loop" in markdown(gpu, [_result(1, {"lift:lift_cube": 20})])
-    assert "--policy.device=cpu" in SuiteBenchConfig(tasks=["lift"]).train_run(0, tmp_path).command()
+    cpu = SuiteBenchConfig(tasks=["lift"], output_dir=tmp_path)
+    assert "--policy.device=cpu" in cpu.train_run(0, tmp_path / "keyframe").command()
