@@ -29,6 +29,9 @@ def test_compare_trains_and_evaluates_sigma_and_a_stock_policy_on_one_collection
     assert "| sigma | keyframe (RGB-D) | 2 × 2 |" in text and "| diffusion | dense (RGB) | 2 × 2 |" in text
     out = json.loads((tmp_path / "cmp" / "compare.json").read_text())
     assert set(out["eval"]) == {"sigma", "diffusion"}
+    # Each run's arguments as it was started (after training, the run's command is its resume command).
+    assert out["trained"]["sigma"]["args"][:2] == ["--policy.type=sigma", "--policy.device=cpu"]
+    assert out["trained"]["diffusion"]["args"][0] == "--policy.type=diffusion"
     for rows in out["eval"].values():
         assert [(r["task"], r["variation"], r["episodes"], r["seeds"]) for r in rows] == [
             ("lift", "lift_cube", 1, [100000])
