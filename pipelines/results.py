@@ -11,7 +11,7 @@ Numbers come only from those runs.
 
     sigma-results                                  # collect, loader, renderer, policy (~30 min on 2 CPU cores)
     sigma-results --include_slow true              # also experts (~45 min), learning (~45 min), demos (~50 min),
-                                                   # suite (~70 min per seed), ablation (~1 h), compare (~50 min)
+                                                   # suite (~70 min per seed), ablation (~1 h), compare (~2.5 h)
     sigma-results --stitch_only true               # run nothing, only rebuild RESULTS.md
     sigma-results --only loader,policy             # comma-separated names (also --skip)
     sigma-results --only loader --extra_args '{"loader": "--samples 5"}'   # flags appended to a command
@@ -62,11 +62,13 @@ BENCHMARKS: tuple[Benchmark, ...] = (
         slow=True,
         takes_results_dir=False,
     ),
-    # ~50 min: sigma, ACT and Diffusion Policy, ~11 min of lerobot-train each, 20 evaluation episodes each.
+    # ~2.5 h: collection (~8 min), sigma, ACT and Diffusion Policy (~18-21 min of lerobot-train each on 2026-11-26's
+    # host), 20 evaluation episodes per variation each (stock policies' dense episodes ~6-10 min per variation).
     Benchmark(
         "compare",
         "Σ-agent vs stock LeRobot policies (same demonstrations, same evaluation seeds)",
-        "sigma-compare --output_dir outputs/compare --tasks '[lift]' --episodes 30 --eval_episodes 20 --publish true",
+        "sigma-compare --output_dir outputs/compare_ls --tasks '[lift,stack]' --episodes 30 --eval_episodes 20 "
+        "--publish true",
         slow=True,
         takes_results_dir=False,
     ),
