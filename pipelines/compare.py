@@ -172,7 +172,6 @@ def train_stage(cfg: CompareConfig, data: dict[str, Path]) -> dict[str, dict]:
         print(
             f"{policy}: lerobot-train {budget.steps} steps x batch {budget.batch_size}; log {log}", flush=True
         )
-        args = run.command()[1:]  # before training: afterwards the run's command is its resume command
         ckpt, seconds = train(run, log)
         results[policy] = {
             "checkpoint": str(ckpt),
@@ -180,7 +179,7 @@ def train_stage(cfg: CompareConfig, data: dict[str, Path]) -> dict[str, dict]:
             "steps": budget.steps,
             "batch_size": budget.batch_size,
             "dataset": str(run.dataset_root),
-            "args": args,
+            "args": run.arguments(),
             "last_metrics": last_logged_metrics(log),
         }
         done.write_text(json.dumps(results[policy], indent=2))

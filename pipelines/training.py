@@ -65,15 +65,16 @@ class TrainRun:
         return None
 
     def command(self) -> list[str]:
-        """The ``lerobot-train`` command line: a fresh run, or ``--resume=true`` from :attr:`resumable` (the
-        saved ``train_config.json`` then holds every option)."""
+        """The ``lerobot-train`` command line: a fresh run (:meth:`arguments`), or ``--resume=true`` from
+        :attr:`resumable` (the saved ``train_config.json`` then holds every option)."""
+        executable = str(Path(sys.executable).with_name("lerobot-train"))
         if self.resumable is not None:
             config = self.resumable / "pretrained_model" / "train_config.json"
-            return [
-                str(Path(sys.executable).with_name("lerobot-train")),
-                f"--config_path={config}",
-                "--resume=true",
-            ]
+            return [executable, f"--config_path={config}", "--resume=true"]
+        return [executable, *self.arguments()]
+
+    def arguments(self) -> list[str]:
+        """The ``lerobot-train`` arguments of this run as a fresh start (a resumed run continues with them)."""
         policy = [f"--policy.type={self.policy_type}", f"--policy.device={self.device}"]
         if self.policy_type == "sigma":
             policy.append(f"--policy.preset={self.preset}")
@@ -82,7 +83,6 @@ class TrainRun:
         else:
             policy.append("--policy.push_to_hub=false")
         return [
-            str(Path(sys.executable).with_name("lerobot-train")),
             *policy,
             f"--dataset.root={self.dataset_root}",
             f"--dataset.repo_id=local/{Path(self.dataset_root).name}",
