@@ -191,7 +191,31 @@ def markdown(cfg: SuiteBenchConfig, results: list[dict]) -> str:
             f"| **{cell(n['successes'], n['episodes'], n['ci95'])}** | {fails} "
             f"| {r['train_seconds'] / 60:.0f} | {r['eval'].get('seconds', float('nan')) / 60:.0f} |"
         )
-    return head + "\n".join(lines + summary) + "\n"
+    return head + "\n".join(lines + summary + per_task_lines(cfg, results)) + "\n"
+
+
+def per_task_lines(cfg: SuiteBenchConfig, results: list[dict]) -> list[str]:
+    """A table of the held-out translation error per task at the last checkpoint (median, share within 1 cm), one
+    column per training seed; empty when the diagnostics have no per-task split."""
+    per = [r["diagnostics"]["checkpoints"][-1]["heldout"].get("per_task", {}) for r in results]
+    tasks = [t for t in cfg.tasks if any(t in p for p in per)]
+    if not tasks:
+        return []
+    seeds = " | ".join(f"seed {r['seed']}" for r in results)
+    lines = [
+        "",
+        f"| task: held-out keyframes, median cm (≤ 1 cm) | {seeds} |",
+        "|---" * (1 + len(results)) + "|",
+    ]
+    for t in tasks:
+        cells = [
+            f"{p[t]['all']['trans_cm_median']:.2f} ({100 * p[t]['all']['within_1cm']:.0f}%)"
+            if t in p
+            else "-"
+            for p in per
+        ]
+        lines.append(f"| {t} | " + " | ".join(cells) + " |")
+    return lines
 
 
 def main(argv: list[str] | None = None) -> int:

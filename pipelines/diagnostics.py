@@ -11,7 +11,9 @@ and is compared with the recorded one:
 
 Errors are summarised (median, mean, 90th percentile, share within 1 cm / 2 cm / 10°) over the whole set and per
 keyframe step (frame k of an episode predicts its keyframe k + 1: for Lift step 0 is the pre-grasp pose, 1 the
-grasp, 2 the close, 3 the lift), which tells *where* a policy fails.
+grasp, 2 the close, 3 the lift), which tells *where* a policy fails; on a dataset sigma collected (its
+``meta/sigma.json`` names each episode's task) also per task, with each task's steps, which tells *which* task of a
+multi-task policy fails.
 
 **Instruction swap**: sigma collects every variation of a task from the same seeds, and a seed fixes the scene, so
 the start frames of e.g. "stack the red cube on the green cube" and "stack the green cube on the red cube" with one
@@ -305,19 +307,49 @@ def instruction_swap(policy: Any, pre: Any, kf: KeyframeSet, scenes: list[SwapSc
     }
 
 
+def row_tasks(dataset: Any, rows: list[int]) -> np.ndarray | None:
+    """The task (``meta/sigma.json``'s ``episodes[].task``) of each dataset row; None for a dataset sigma did not
+    collect (no sidecar)."""
+    from sigma_data.contract import SIDECAR, read_sidecar
+
+    root = Path(dataset.root)
+    if not (root / SIDECAR).exists():
+        return None
+    task_of = {int(e["episode_index"]): str(e["task"]) for e in read_sidecar(root).get("episodes", [])}
+    eps = dataset.meta.episodes
+    row_task: dict[int, str] = {}
+    for ep in range(len(eps)):
+        task = task_of.get(int(eps["episode_index"][ep]), "unknown")
+        row_task.update(
+            dict.fromkeys(range(int(eps["dataset_from_index"][ep]), int(eps["dataset_to_index"][ep])), task)
+        )
+    return np.array([row_task[int(r)] for r in rows])
+
+
+def summaries(err: dict[str, np.ndarray], steps: np.ndarray) -> dict[str, Any]:
+    """``{"all": ..., "per_step": {step: ...}}``: :func:`summarise_errors` of every frame and of each keyframe step."""
+    per_step = {
+        str(int(s)): summarise_errors({k: v[steps == s] for k, v in err.items()}) for s in np.unique(steps)
+    }
+    return {"all": summarise_errors(err), "per_step": per_step}
+
+
 def diagnose_checkpoint(
     policy: Any, pre: Any, sets: list[KeyframeSet], batch_size: int = 16
 ) -> dict[str, dict[str, Any]]:
-    """Per set: the overall summary and one per keyframe step."""
+    """Per set: the overall summary, one per keyframe step and, on a sigma-collected dataset, the same per task
+    (``per_task``: {task: {"all", "per_step"}})."""
     out: dict[str, dict[str, Any]] = {}
     for kf in sets:
         pred, true = predict_rows(policy, pre, kf, batch_size)
         err = action_errors(pred, true)
-        per_step = {
-            str(int(s)): summarise_errors({k: v[kf.steps == s] for k, v in err.items()})
-            for s in np.unique(kf.steps)
-        }
-        out[kf.name] = {"all": summarise_errors(err), "per_step": per_step}
+        out[kf.name] = summaries(err, kf.steps)
+        tasks = row_tasks(kf.dataset, kf.indices)
+        if tasks is not None:
+            out[kf.name]["per_task"] = {
+                t: summaries({k: v[tasks == t] for k, v in err.items()}, kf.steps[tasks == t])
+                for t in sorted(set(tasks.tolist()))
+            }
         if kf.swap:
             out[kf.name]["swap"] = instruction_swap(policy, pre, kf, kf.swap)
     return out
@@ -431,6 +463,13 @@ def summary_line(report: dict[str, Any]) -> str:
             f"{name}: {a['trans_cm_median']:.2f} cm, {a['rot_deg_median']:.1f} deg, "
             f"gripper {100 * a['gripper_acc']:.0f}% ({a['frames']} frames)"
         )
+        per_task = last[name].get("per_task", {})
+        if len(per_task) > 1:
+            parts[-1] += (
+                " ["
+                + ", ".join(f"{t} {v['all']['trans_cm_median']:.2f} cm" for t, v in per_task.items())
+                + "]"
+            )
         swap = last[name].get("swap")
         if swap:
             parts[-1] += (

@@ -100,7 +100,9 @@ def failure_reason(result: EpisodeResult, max_keyframes: int) -> str | None:
     """A short, task-independent reason for a failed episode, from its keyframe trace.
 
     In order of precedence: ``error: ...`` (an exception); ``wrong object: did <variation>`` (the scene ended in
-    another variation's success state: the policy did the other instruction); ``grasp missed at keyframe k`` (the
+    another variation's success state: the policy did the other instruction); ``wrong object at keyframe k: went
+    for <variation>`` (the gripper first closed nearer another variation's object than the instructed one, see
+    :func:`nearest_variation`: the policy did not ground the instruction); ``grasp missed at keyframe k`` (the
     gripper closed on nothing: finger gap below 1 cm); ``dropped at keyframe k`` (something was held, then the
     gripper opened away from success); ``repeats keyframe k`` (the next keyframe is the same pose and gripper
     command: stuck); ``keyframe k not reached (stalled|budget)`` (the executor could not get the arm there);
@@ -115,6 +117,9 @@ def failure_reason(result: EpisodeResult, max_keyframes: int) -> str | None:
     held = False
     for step in result.trace:
         k = step["keyframe"]
+        nearest = step.get("nearest")
+        if step["closed_now"] and not held and nearest is not None and nearest != result.variation:
+            return f"wrong object at keyframe {k}: went for {nearest}"
         if step["closed_now"] and step["finger_gap_m"] < EMPTY_GRIP_GAP_M:
             return f"grasp missed at keyframe {k}"
         held = held or step["closed_now"]
@@ -254,6 +259,7 @@ class _Worker:
                         "opened_now": now_open and not was_open,
                         "finger_gap_m": round(float(abs(fingers[0]) + abs(fingers[1])), 4),
                     }
+                    | nearest_variation(env)
                 )
                 was_open = now_open
                 if terminated:
@@ -302,6 +308,22 @@ class _Worker:
         pred = self.policy.last_prediction
         if pred is not None:
             log_policy_frame(rec, **prediction_frame(self.policy, pred, instruction), step=step)
+
+
+def nearest_variation(env) -> dict[str, str]:
+    """``{"nearest": <variation>}``: the variation of ``env``'s task whose object (``TaskSpec.target``) is nearest
+    the grip site in the horizontal plane, e.g. which PickPlace object the hand is over; ``{}`` for a task with
+    one object."""
+    import numpy as np
+
+    from sigma_data.control import grip_site_frame
+
+    task = env.task
+    if task.target is None or len(task.variations) < 2:
+        return {}
+    site = grip_site_frame(env.env)[0][:2]
+    dist = {v.name: float(np.linalg.norm(task.target(env.env, v)[:2] - site)) for v in task.variations}
+    return {"nearest": min(dist, key=dist.get)}
 
 
 def other_variation_done(env) -> str | None:

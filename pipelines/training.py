@@ -105,14 +105,15 @@ def start(run: TrainRun, log_path: Path | None = None, threads: int | None = Non
     env = dict(os.environ, HF_HUB_OFFLINE="1")
     if threads:
         env["OMP_NUM_THREADS"] = str(threads)
+    cmd = run.command()  # a fresh start or, with a checkpoint to resume, the resume command
     if log_path is None:
-        print("$ " + " ".join(run.command()), flush=True)
-        return subprocess.Popen(run.command(), env=env)
+        print("$ " + " ".join(cmd), flush=True)
+        return subprocess.Popen(cmd, env=env)
     log_path.parent.mkdir(parents=True, exist_ok=True)
     with open(log_path, "w") as log:
-        log.write("$ " + " ".join(run.command()) + "\n")
+        log.write("$ " + " ".join(cmd) + "\n")
         log.flush()
-        return subprocess.Popen(run.command(), env=env, stdout=log, stderr=subprocess.STDOUT)
+        return subprocess.Popen(cmd, env=env, stdout=log, stderr=subprocess.STDOUT)
 
 
 def wait(run: TrainRun, proc: subprocess.Popen, log_path: Path | None = None) -> Path:

@@ -87,6 +87,7 @@ TASKS: dict[str, TaskSpec] = {
             bounds=TABLETOP_BOX,
             expert=stack_expert,
             success=stack.success,
+            target=stack.target,
             max_steps=400,
         ),
         TaskSpec(
@@ -107,6 +108,7 @@ TASKS: dict[str, TaskSpec] = {
             bounds=(-0.4, -0.5, 0.75, 0.6, 0.5, 1.75),
             expert=pick_place_expert,
             success=pick_place.success,
+            target=pick_place.target,
             max_steps=500,
         ),
         TaskSpec(
@@ -132,6 +134,7 @@ TASKS: dict[str, TaskSpec] = {
             bounds=(-0.3, -0.35, 0.78, 0.4, 0.35, 1.48),
             expert=nut_assembly_expert,
             success=nut_assembly.success,
+            target=nut_assembly.target,
             max_steps=600,
         ),
         TaskSpec(

@@ -33,6 +33,12 @@ def peg_body_id(env: Any, nut: str) -> int:
     return int((env.peg1_body_id, env.peg2_body_id)[nut_index(env, nut)])
 
 
+def target(env: Any, variation: Variation) -> np.ndarray:
+    """World position of the handle of the nut the variation names (where it is grasped)."""
+    site = nut_object(env, variation.params["nut"]).important_sites["handle"]
+    return np.array(env.sim.data.site_xpos[env.sim.model.site_name2id(site)], dtype=np.float64)
+
+
 def success(env: Any, variation: Variation) -> bool:
     """The named nut sits around its own peg (robosuite's ``on_peg``) and the gripper is away from it."""
     nut = variation.params["nut"]

@@ -30,6 +30,11 @@ def object_body_id(env: Any, name: str) -> int:
     return int(env.obj_body_id[env.objects[object_index(env, name)].name])
 
 
+def target(env: Any, variation: Variation) -> np.ndarray:
+    """World position of the object the variation names."""
+    return np.array(env.sim.data.body_xpos[object_body_id(env, variation.params["object"])], dtype=np.float64)
+
+
 def success(env: Any, variation: Variation) -> bool:
     """The named object is inside its bin quadrant (robosuite's ``not_in_bin``) and the gripper is away."""
     name = variation.params["object"]

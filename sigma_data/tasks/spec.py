@@ -19,6 +19,7 @@ if TYPE_CHECKING:
 
 Bounds = tuple[float, float, float, float, float, float]
 SuccessFn = Callable[[Any, "Variation"], bool]
+TargetFn = Callable[[Any, "Variation"], np.ndarray]
 
 
 @dataclass(frozen=True)
@@ -50,7 +51,9 @@ class TaskSpec:
 
     ``bounds`` is the policy workspace box ``(xmin, ymin, zmin, xmax, ymax, zmax)`` in world metres (cubes,
     so voxel grids and orthographic virtual views stay isotropic); robosuite's table top is at z = 0.8.
-    ``max_steps`` is the control-step budget of one expert episode (20 steps = 1 s).
+    ``max_steps`` is the control-step budget of one expert episode (20 steps = 1 s). ``target`` gives, for a
+    scene with several objects, where the variation's object is grasped (world xyz, metres): evaluation names the
+    object a policy went for with it (``pipelines/evaluate.py``); None for a task with one object.
     """
 
     name: str
@@ -61,6 +64,7 @@ class TaskSpec:
     expert: ExpertFn
     success: SuccessFn
     max_steps: int
+    target: TargetFn | None = None
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "env_kwargs", MappingProxyType(dict(self.env_kwargs)))

@@ -29,6 +29,12 @@ def cube_half_size(env: Any, name: str) -> float:
     return float(np.max(cube(env, name).size))
 
 
+def target(env: Any, variation: Variation) -> np.ndarray:
+    """World position of the cube the variation picks up (its top cube)."""
+    body = cube(env, variation.params["top"]).root_body
+    return np.array(env.sim.data.body_xpos[env.sim.model.body_name2id(body)], dtype=np.float64)
+
+
 def success(env: Any, variation: Variation) -> bool:
     """The top cube is lifted above the table, touches the bottom cube and is not grasped (robosuite's rule)."""
     top, bottom = cube(env, variation.params["top"]), cube(env, variation.params["bottom"])

@@ -62,3 +62,21 @@ def test_device_option_reaches_lerobot_train_and_the_table(tmp_path):
     assert ", CUDA; closed loop" in markdown(gpu, [_result(1, {"lift:lift_cube": 20})])
     cpu = SuiteBenchConfig(tasks=["lift"], output_dir=tmp_path)
     assert "--policy.device=cpu" in cpu.train_run(0, tmp_path / "keyframe").command()
+
+
+def test_held_out_error_per_task_when_the_diagnostics_split_it():
+    cfg = SuiteBenchConfig(tasks=["lift", "stack", "pick_place"], seeds=[0, 1])
+    results = [_result(0, {"lift:lift_cube": 20}), _result(1, {"lift:lift_cube": 20})]
+    assert "held-out keyframes, median cm" not in markdown(cfg, results)  # no split recorded: no table
+    held = results[0]["diagnostics"]["checkpoints"][0]["heldout"]
+    results[0]["diagnostics"]["checkpoints"][0]["heldout"] = held | {
+        "per_task": {
+            "stack": {"all": {"trans_cm_median": 0.42, "within_1cm": 0.9}},
+            "lift": {"all": {"trans_cm_median": 0.22, "within_1cm": 1.0}},
+        }
+    }
+    text = markdown(cfg, results)
+    assert "| task: held-out keyframes, median cm (≤ 1 cm) | seed 0 | seed 1 |" in text
+    # Tasks in the suite's order; a seed without the split gets a dash; a task nobody measured gets no row.
+    assert text.index("| lift | 0.22 (100%) | - |") < text.index("| stack | 0.42 (90%) | - |")
+    assert "| pick_place |" not in text

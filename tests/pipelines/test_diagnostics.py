@@ -154,3 +154,33 @@ def test_instruction_swap_on_one_scene_under_two_instructions(tmp_path):
     assert swap["swap_scenes"] == 1 and swap["swap_nearest"] in (0.0, 0.5, 1.0)
     assert swap["swap_trans_cm_median"] > 0
     assert swap_scenes(KeyframeSet("train", ds, rows, np.asarray(steps), episodes=[0])) == []
+
+
+def test_errors_per_task_on_a_dataset_that_names_its_tasks(tmp_path):
+    """A multi-task dataset's errors split by the task its sidecar records per episode; without one, no split."""
+    from pipelines.checkpoints import load_policy
+    from pipelines.diagnostics import KeyframeSet, diagnose_checkpoint, summary_line
+
+    root = write_tiny_keyframe_dataset(tmp_path / "tiny", episodes=3, size=32)
+    _save_checkpoint(root, tmp_path / "ckpt", [0, 1, 2], 0)
+    policy, pre, _ = load_policy(tmp_path / "ckpt")
+    ds = open_dataset(root)
+    rows, steps = goal_rows(ds)
+    kf = KeyframeSet("train", ds, rows, np.asarray(steps))
+    assert "per_task" not in diagnose_checkpoint(policy, pre, [kf])["train"]
+
+    tasks = ["reach", "reach", "push"]
+    sidecar = {"episodes": [{"episode_index": e, "task": tasks[e], "seed": e} for e in range(3)]}
+    (root / "meta" / "sigma.json").write_text(json.dumps(sidecar))
+    report = diagnose_checkpoint(policy, pre, [kf])["train"]
+    per_task = report["per_task"]
+    assert sorted(per_task) == ["push", "reach"]
+    assert per_task["reach"]["all"]["frames"] == 4 and per_task["push"]["all"]["frames"] == 2
+    assert set(per_task["push"]["per_step"]) == {"0", "1"}
+    # The split partitions the frames: the frame-weighted task means are the overall mean.
+    mean = sum(v["all"]["trans_cm_mean"] * v["all"]["frames"] for v in per_task.values()) / 6
+    assert mean == pytest.approx(report["all"]["trans_cm_mean"])
+    line = summary_line(
+        {"checkpoints": [{"step": 5, "train": report}], "sets": {"train": 6}, "output_dir": "x"}
+    )
+    assert "push" in line and "reach" in line

@@ -61,6 +61,22 @@ def test_doing_the_other_instruction_is_named_before_the_trace():
     assert _failure_kind(failure_reason(result, 12)) == "wrong object"
 
 
+def test_closing_at_another_variations_object_is_a_wrong_object_failure():
+    # The first close decides: over the can while asked for the milk (PickPlace), however the grasp went.
+    def trace(nearest):
+        return [
+            _step(1, PREGRASP) | {"nearest": nearest},
+            _step(2, GRASP, 0.0, closed=True, gap=0.03) | {"nearest": nearest},
+            _step(3, LIFT, 1.0, opened=True) | {"nearest": "milk"},
+        ]
+
+    milk = EpisodeResult("pick_place", "milk", 7, False, 3, 100, 1.0, trace=trace("can"))
+    assert failure_reason(milk, 12) == "wrong object at keyframe 2: went for can"
+    assert _failure_kind(failure_reason(milk, 12)) == "wrong object"
+    milk.trace = trace("milk")  # over the milk: the trace decides as before
+    assert failure_reason(milk, 12) == "dropped at keyframe 3"
+
+
 def test_success_and_errors():
     assert failure_reason(_result([_step(1, LIFT)], success=True), 12) is None
     assert (
@@ -106,3 +122,34 @@ def test_the_other_stacking_order_is_recognised_in_real_robosuite():
         assert other_variation_done(env) == "red_on_green"
     finally:
         env.close()
+
+
+@pytest.mark.parametrize(
+    ("scene", "done_by"), [("pick_place:milk", "bread"), ("nut_assembly:square_nut", "round_nut")]
+)
+def test_the_object_the_hand_went_for_is_named_in_real_robosuite(scene, done_by):
+    """Another variation's expert run in this scene leaves the hand at that variation's object, and the trace's
+    ``nearest`` says so (``TaskSpec.target`` of PickPlace objects and NutAssembly handles)."""
+    import numpy as np
+
+    from pipelines.evaluate import nearest_variation
+    from sigma_data.control import EnvDriver
+    from sigma_data.sim_env import SigmaRobosuiteEnv
+    from sigma_data.suite import get_task, get_variation
+
+    env = SigmaRobosuiteEnv(scene, cameras=("agentview",), image_size=32)
+    try:
+        env.reset(seed=0)
+        task = env.task
+        other = get_variation(task, done_by)
+        task.expert(EnvDriver(env.env), other, np.random.default_rng(0))
+        assert task.success(env.env, other) and not task.success(env.env, env.variation)
+        assert nearest_variation(env) == {"nearest": done_by}
+    finally:
+        env.close()
+    assert get_task("lift").target is None
+    lift = SigmaRobosuiteEnv("lift", cameras=("agentview",), image_size=32)
+    try:
+        assert nearest_variation(lift) == {}  # one object: nothing to tell apart
+    finally:
+        lift.close()
