@@ -37,9 +37,8 @@ def target(env: Any, variation: Variation) -> np.ndarray:
 
 def success(env: Any, variation: Variation) -> bool:
     """The named object is inside its bin quadrant (robosuite's ``not_in_bin``) and the gripper is away."""
-    name = variation.params["object"]
-    i = object_index(env, name)
-    obj_pos = env.sim.data.body_xpos[object_body_id(env, name)]
+    i = object_index(env, variation.params["object"])
+    obj_pos = target(env, variation)
     site_pos = env.sim.data.site_xpos[env.robots[0].eef_site_id["right"]]
     gripper_away = np.linalg.norm(site_pos - obj_pos) > MIN_GRIPPER_DISTANCE
     return bool(not env.not_in_bin(obj_pos, i) and gripper_away)

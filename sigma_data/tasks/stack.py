@@ -38,7 +38,6 @@ def target(env: Any, variation: Variation) -> np.ndarray:
 def success(env: Any, variation: Variation) -> bool:
     """The top cube is lifted above the table, touches the bottom cube and is not grasped (robosuite's rule)."""
     top, bottom = cube(env, variation.params["top"]), cube(env, variation.params["bottom"])
-    top_z = env.sim.data.body_xpos[env.sim.model.body_name2id(top.root_body)][2]
-    lifted = top_z > env.table_offset[2] + LIFTED
+    lifted = target(env, variation)[2] > env.table_offset[2] + LIFTED
     grasped = env._check_grasp(gripper=env.robots[0].gripper, object_geoms=top)
     return bool(lifted and not grasped and env.check_contact(top, bottom))
