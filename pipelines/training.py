@@ -101,7 +101,8 @@ class TrainRun:
 
 
 def start(run: TrainRun, log_path: Path | None = None, threads: int | None = None) -> subprocess.Popen:
-    """Start ``lerobot-train``; its output goes to ``log_path`` (or this terminal). ``threads`` caps torch."""
+    """Start ``lerobot-train``; its output goes to ``log_path`` (or this terminal). ``threads`` caps torch.
+    A run resumed from an interrupted one's checkpoint appends to the log, after the interrupted run's part."""
     env = dict(os.environ, HF_HUB_OFFLINE="1")
     if threads:
         env["OMP_NUM_THREADS"] = str(threads)
@@ -110,7 +111,7 @@ def start(run: TrainRun, log_path: Path | None = None, threads: int | None = Non
         print("$ " + " ".join(cmd), flush=True)
         return subprocess.Popen(cmd, env=env)
     log_path.parent.mkdir(parents=True, exist_ok=True)
-    with open(log_path, "w") as log:
+    with open(log_path, "a" if run.resumable is not None else "w") as log:
         log.write("$ " + " ".join(cmd) + "\n")
         log.flush()
         return subprocess.Popen(cmd, env=env, stdout=log, stderr=subprocess.STDOUT)

@@ -130,30 +130,54 @@ def test_checkpoint_prediction_matches_select_action(tmp_path):
 
 
 def test_instruction_swap_on_one_scene_under_two_instructions(tmp_path):
-    """The "language" tiny dataset is one scene under two instructions; a sidecar gives both the same seed."""
+    """The "language" tiny dataset is one scene under two instructions; a sidecar gives both the same seed.
+    Episodes 2-3 repeat the pair under a second task name: every task gets its scenes, and the swap is also
+    reported per task."""
     from pipelines.checkpoints import load_policy
-    from pipelines.diagnostics import KeyframeSet, instruction_swap, swap_scenes
+    from pipelines.diagnostics import (
+        KeyframeSet,
+        diagnose_checkpoint,
+        instruction_swap,
+        summary_line,
+        swap_scenes,
+    )
 
-    root = write_tiny_keyframe_dataset(tmp_path / "lang", episodes=2, size=32, scenes="language")
+    root = write_tiny_keyframe_dataset(tmp_path / "lang", episodes=4, size=32, scenes="language")
     ds = open_dataset(root)
-    instructions = [ds[int(ds.meta.episodes["dataset_from_index"][e])]["task"] for e in (0, 1)]
+    instructions = [ds[int(ds.meta.episodes["dataset_from_index"][e])]["task"] for e in range(4)]
+    assert instructions[:2] == instructions[2:] and instructions[0] != instructions[1]
     sidecar = {
         "episodes": [
-            {"episode_index": e, "task": "reach", "seed": 3, "instruction": instructions[e]} for e in (0, 1)
+            {
+                "episode_index": e,
+                "task": "reach" if e < 2 else "touch",
+                "seed": 3,
+                "instruction": instructions[e],
+            }
+            for e in range(4)
         ]
     }
     (root / "meta" / "sigma.json").write_text(json.dumps(sidecar))
     rows, steps = goal_rows(ds)
     kf = KeyframeSet("heldout", ds, rows, np.asarray(steps))
-    scenes = swap_scenes(kf)
-    assert len(scenes) == 1 and scenes[0].instructions == instructions
+    scenes = swap_scenes(kf, per_task=1)
+    assert [s.task for s in scenes] == ["reach", "touch"] and scenes[0].instructions == instructions[:2]
     assert np.linalg.norm(scenes[0].targets[0] - scenes[0].targets[1]) > 0.1  # two different cubes
     _save_checkpoint(root, tmp_path / "ckpt", [0, 1], 0)
     policy, pre, _ = load_policy(tmp_path / "ckpt")
     swap = instruction_swap(policy, pre, kf, scenes)
-    assert swap["swap_scenes"] == 1 and swap["swap_nearest"] in (0.0, 0.5, 1.0)
+    assert swap["swap_scenes"] == 2 and swap["swap_nearest"] in (0.0, 0.25, 0.5, 0.75, 1.0)
     assert swap["swap_trans_cm_median"] > 0
-    assert swap_scenes(KeyframeSet("train", ds, rows, np.asarray(steps), episodes=[0])) == []
+    # the same scene twice: both tasks score the same, and their mean is the overall share
+    per_task = swap["per_task"]
+    assert per_task["reach"] == per_task["touch"] == {"swap_scenes": 1, "swap_nearest": swap["swap_nearest"]}
+    assert "per_task" not in instruction_swap(policy, pre, kf, scenes[:1])
+    kf.swap = scenes
+    report = {"checkpoints": [{"step": 5, **diagnose_checkpoint(policy, pre, [kf])}], "sets": {"heldout": 6}}
+    line = summary_line(report | {"output_dir": "x"})
+    share = f"{100 * swap['swap_nearest']:.0f}%"
+    assert f"instruction swap {share} (2 scenes: reach {share}, touch {share})" in line
+    assert swap_scenes(KeyframeSet("train", ds, rows, np.asarray(steps), episodes=[0, 2])) == []
 
 
 def test_errors_per_task_on_a_dataset_that_names_its_tasks(tmp_path):

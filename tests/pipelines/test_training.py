@@ -12,7 +12,8 @@ from tests.sigma_policy.tiny_dataset import BOUNDS, write_tiny_keyframe_dataset
 
 def test_an_interrupted_run_resumes_from_its_last_checkpoint(tmp_path):
     """A run killed after its step-2 checkpoint (``last`` still points there; the step-4 one never finished)
-    continues from step 2 with ``--resume=true`` instead of being cleared and retrained."""
+    continues from step 2 with ``--resume=true`` instead of being cleared and retrained; its log keeps the
+    interrupted run's part and appends the resumed one."""
     root = write_tiny_keyframe_dataset(tmp_path / "tiny", episodes=2, size=32)
     run = TrainRun(
         dataset_root=root,
@@ -24,7 +25,7 @@ def test_an_interrupted_run_resumes_from_its_last_checkpoint(tmp_path):
         extra_args=["--policy.img_size=32", "--policy.attn_dim=32", "--policy.attn_heads=2"],
     )
     assert run.resumable is None and "--resume=true" not in run.command()
-    train(run, log_path=tmp_path / "first.log")
+    train(run, log_path=tmp_path / "train.log")
     checkpoints = run.output_dir / "checkpoints"
     # What a kill during the second checkpoint leaves: a partial step-4 directory, `last` still at step 2.
     (checkpoints / "last").unlink()
@@ -37,9 +38,11 @@ def test_an_interrupted_run_resumes_from_its_last_checkpoint(tmp_path):
         f"--config_path={checkpoints / 'last' / 'pretrained_model' / 'train_config.json'}",
         "--resume=true",
     ]
-    ckpt, _ = train(run, log_path=tmp_path / "resumed.log")
-    log = (tmp_path / "resumed.log").read_text()
-    assert "Resuming" in log or "resum" in log.lower()
+    ckpt, _ = train(run, log_path=tmp_path / "train.log")
+    log = (tmp_path / "train.log").read_text()
+    first, resumed = log.split("--resume=true", 1)
+    assert first.startswith("$ ") and "--steps=4" in first and "checkpoint" in first.lower()
+    assert "resum" in resumed.lower()
     state = json.loads((checkpoints / "last" / "training_state" / "training_step.json").read_text())
     assert state["step"] == 4 and (ckpt / "model.safetensors").exists()
     assert os.readlink(checkpoints / "last") == "000004"
