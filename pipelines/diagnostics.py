@@ -276,9 +276,11 @@ def swap_scenes(kf: KeyframeSet, per_task: int = 10) -> list[SwapScene]:
             groups.setdefault((ep["task"], int(ep["seed"])), []).append(ep)
     starts = kf.dataset.meta.episodes["dataset_from_index"]
     scenes: list[SwapScene] = []
+    taken: dict[str, int] = {}
     for (task, seed), eps in sorted(groups.items()):
-        if len({e["instruction"] for e in eps}) < 2 or sum(s.task == task for s in scenes) == per_task:
+        if len({e["instruction"] for e in eps}) < 2 or taken.get(task, 0) == per_task:
             continue
+        taken[task] = taken.get(task, 0) + 1
         rows = [int(starts[e["episode_index"]]) for e in eps]
         targets = np.stack([kf.dataset[r]["action"][:3].numpy() for r in rows])
         scenes.append(SwapScene(task, seed, rows, [e["instruction"] for e in eps], targets))
@@ -482,15 +484,11 @@ def summary_line(report: dict[str, Any]) -> str:
             )
         swap = last[name].get("swap")
         if swap:
-            parts[-1] += f", instruction swap {100 * swap['swap_nearest']:.0f}% ({swap['swap_scenes']} scenes"
-            per_task_swap = swap.get("per_task", {})
-            parts[-1] += (
-                ": "
-                + ", ".join(f"{t} {100 * v['swap_nearest']:.0f}%" for t, v in per_task_swap.items())
-                + ")"
-                if per_task_swap
-                else ")"
+            by_task = ", ".join(
+                f"{t} {100 * v['swap_nearest']:.0f}%" for t, v in swap.get("per_task", {}).items()
             )
+            parts[-1] += f", instruction swap {100 * swap['swap_nearest']:.0f}% ({swap['swap_scenes']} scenes"
+            parts[-1] += f": {by_task})" if by_task else ")"
     step = last["step"]
     at = f"step {step}" if step >= 0 else "checkpoint"
     return f"sigma-diagnose: {at}: " + "; ".join(parts) + f" -> {report['output_dir']}"
