@@ -195,6 +195,20 @@ def recorded_instruction_bounds(root: str | Path) -> dict[str, list[float]]:
     }
 
 
+def recorded_instruction_tasks(root: str | Path) -> dict[str, str]:
+    """instruction -> the task it belongs to (``"put the milk in its bin"`` -> ``"pick_place"``), from the episode
+    records of a sigma dataset's ``meta/sigma.json``; {} if there is no readable sidecar."""
+    try:
+        sidecar = read_sidecar(root)
+    except (OSError, ValueError):
+        return {}
+    return {
+        str(ep["instruction"]): str(ep["task"])
+        for ep in sidecar.get("episodes", [])
+        if "instruction" in ep and "task" in ep
+    }
+
+
 def dataset_kind(root: str | Path, features: Mapping[str, Mapping[str, Any]]) -> DatasetKind:
     """``"dense"`` or ``"keyframe"``: the sidecar's ``kind`` if there is a sidecar, else the action size (7 or
     9). Raises ``ValueError`` naming the file or feature when neither decides."""

@@ -45,7 +45,11 @@ Paper-vs-code discrepancies (docs/method.md §13), each a field; default and rea
 4. Negatives — ``mask_same_instruction=True``: in the state↔language term, batch entries with the *same
    instruction* are removed from the negatives (paper: "negatives from other tasks"; their language feature is
    identical to the positive, so they are false negatives). The code masks nothing (``False``). The goal term
-   never masks: two states with the same instruction still have different goals.
+   never masks: two states with the same instruction still have different goals. ``mask_same_task=True`` (a sigma
+   option, off by default) follows the paper's wording to the letter: it also masks the other variations of the
+   positive's task (``instruction_tasks``, from the dataset's episode records). A start frame of PickPlace is the
+   same scene under four instructions, and phi(s_t) is computed before the instruction enters, so those negatives
+   ask the image encoder for something it cannot see (docs/learning.md).
 5. Goal — the next keyframe (code and paper's main text): fixed by the keyframe dataset via
    ``observation_delta_indices=[0, 1]``; no field.
 6. Proprio — ``use_proprio``: ``False`` in ``paper`` (Σ code); ``True`` adds one token from ``observation.state``
@@ -99,6 +103,7 @@ from sigma_data.contract import (  # the data contract: the only sigma_data modu
     intrinsics_key,
     recorded_bounds,
     recorded_instruction_bounds,
+    recorded_instruction_tasks,
     rgb_key,
 )
 from sigma_policy.lamb import LambConfig
@@ -204,6 +209,7 @@ class SigmaConfig(PreTrainedConfig):
     query_attention: str = "self"
     bc_lambda: float = 0.5
     mask_same_instruction: bool = True
+    mask_same_task: bool = False
     use_proprio: bool | None = None  # None = from preset (paper False, small True)
     # With use_proprio: add the grip site's position in the scene box ([-1, 1] per axis, after augmentation) to the
     # proprio token. None = from preset (paper False, small True).
@@ -244,6 +250,9 @@ class SigmaConfig(PreTrainedConfig):
     # instruction -> (xmin, ymin, zmin, xmax, ymax, zmax); filled from the training dataset's meta/sigma.json
     # (each episode's instruction and its task's recorded box) when ``per_task_bounds`` and left empty.
     instruction_bounds: dict[str, list[float]] = field(default_factory=dict)
+    # instruction -> task name; filled from the training dataset's meta/sigma.json with ``mask_same_task`` when empty.
+    # An instruction missing here is a task of its own.
+    instruction_tasks: dict[str, str] = field(default_factory=dict)
     text_encoder: str = "minilm"
     text_encoder_path: str | None = None
 
@@ -388,9 +397,12 @@ class SigmaConfig(PreTrainedConfig):
     def resolve_scene_bounds(self, dataset_root: str | Path | None = None) -> list[float]:
         """Fill ``scene_bounds`` when unset: the union of the task boxes a sigma dataset records in
         ``meta/sigma.json`` (``"bounds": {task: box}``), else :data:`DEFAULT_SCENE_BOUNDS`; with
-        ``per_task_bounds``, also ``instruction_bounds`` when empty. Returns ``scene_bounds``."""
+        ``per_task_bounds``, also ``instruction_bounds`` when empty, and with ``mask_same_task``
+        ``instruction_tasks``. Returns ``scene_bounds``."""
         if self.per_task_bounds and not self.instruction_bounds and dataset_root is not None:
             self.instruction_bounds = recorded_instruction_bounds(dataset_root)
+        if self.mask_same_task and not self.instruction_tasks and dataset_root is not None:
+            self.instruction_tasks = recorded_instruction_tasks(dataset_root)
         if self.scene_bounds is None:
             boxes = recorded_bounds(dataset_root) if dataset_root is not None else []
             if boxes:

@@ -93,6 +93,16 @@ class SigmaPolicy(PreTrainedPolicy):
         lerobot_patches.install()  # faster multi-frame reads of the datasets this policy trains on (idempotent)
         config.validate_features()
         config.resolve_scene_bounds(getattr(dataset_meta, "root", None))
+        if (
+            dataset_meta is not None
+            and config.use_contrastive
+            and config.mask_same_task
+            and not config.instruction_tasks
+        ):
+            logging.getLogger(__name__).warning(
+                "mask_same_task: no instruction -> task map (policy.instruction_tasks, or a dataset whose "
+                "meta/sigma.json records each episode's task); only same-instruction negatives are masked"
+            )
         self.config: SigmaConfig = config
         self.cameras = config.camera_names()
         self._depth_checked = False
@@ -259,7 +269,7 @@ class SigmaPolicy(PreTrainedPolicy):
         }
         per_sample = bc
         if cfg.use_contrastive:
-            group = instruction_ids(tasks, device=bc.device) if cfg.mask_same_instruction else None
+            group = self._negative_groups(tasks, bc.device)
             cl = contrastive_losses(
                 out.state_feat,
                 out.lang_feat,
@@ -379,6 +389,15 @@ class SigmaPolicy(PreTrainedPolicy):
             self._warned_instructions |= unknown
         union = self.config.scene_bounds
         return torch.tensor([boxes.get(t, union) for t in tasks], dtype=torch.float32, device=self._device)
+
+    def _negative_groups(self, instructions: list[str], device: torch.device) -> Tensor | None:
+        """(B,) ids for the state↔language term: rows sharing an id are not each other's negatives. With
+        ``mask_same_task`` the id is the instruction's task (an instruction without one is its own task), with
+        ``mask_same_instruction`` the instruction; None masks nothing."""
+        cfg = self.config
+        if cfg.mask_same_task:
+            return instruction_ids([cfg.instruction_tasks.get(s, s) for s in instructions], device=device)
+        return instruction_ids(instructions, device=device) if cfg.mask_same_instruction else None
 
     def _cloud(self, batch: dict[str, Any], t: int) -> _Cloud:
         """Fused world-frame point cloud of all cameras at frame ``t``."""

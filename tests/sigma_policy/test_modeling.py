@@ -478,7 +478,7 @@ def test_per_task_bounds_are_read_from_the_dataset_sidecar(tmp_path):
     """``instruction_bounds`` come from the sidecar: each episode's instruction gets its task's recorded box."""
     import json
 
-    from sigma_data.contract import SIDECAR, recorded_instruction_bounds
+    from sigma_data.contract import SIDECAR, recorded_instruction_bounds, recorded_instruction_tasks
 
     sidecar = {
         "bounds": {
@@ -497,7 +497,28 @@ def test_per_task_bounds_are_read_from_the_dataset_sidecar(tmp_path):
         "put the milk in its bin": sidecar["bounds"]["pick_place"],
     }
     assert recorded_instruction_bounds(tmp_path) == expected
-    cfg = SigmaConfig(preset="small", device="cpu", per_task_bounds=True)
+    cfg = SigmaConfig(preset="small", device="cpu", per_task_bounds=True, mask_same_task=True)
     assert cfg.resolve_scene_bounds(tmp_path) == [-0.4, -0.5, 0.75, 0.6, 0.5, 1.75]
     assert cfg.instruction_bounds == expected
+    assert cfg.instruction_tasks == {"lift the cube": "lift", "put the milk in its bin": "pick_place"}
     assert recorded_instruction_bounds(tmp_path / "missing") == {}
+    assert recorded_instruction_tasks(tmp_path / "missing") == {}
+
+
+def test_mask_same_task_leaves_no_state_language_negatives_from_the_same_task(tiny_root):
+    """``mask_same_task``: the other variations of a task are not negatives of the state↔language term (a batch of
+    one task's two instructions has none left, so the term is 0); with ``mask_same_instruction`` alone they are."""
+    red, blue = "reach the red cube", "reach the blue cube"
+    tasks = {red: "reach", blue: "reach", "lift the cube": "lift"}
+    _, policy, pre, _, ds = build(tiny_root, mask_same_task=True, instruction_tasks=tasks)
+    ids = policy._negative_groups([red, blue, "lift the cube", "an instruction never seen"], "cpu").tolist()
+    assert ids[0] == ids[1] and len({ids[0], ids[2], ids[3]}) == 3
+    batch = pre(training_batch(ds, [0, 1, 3, 4])) | {"task": [red, blue, red, blue]}
+    torch.manual_seed(0)
+    _, info = policy.forward(batch)
+    assert info["contrastive_sl_loss"] == 0.0 and info["contrastive_goal_loss"] > 0
+    policy.config.mask_same_task = False
+    assert len(set(policy._negative_groups([red, blue], "cpu").tolist())) == 2
+    torch.manual_seed(0)
+    _, info = policy.forward(batch)
+    assert info["contrastive_sl_loss"] > 0
