@@ -172,21 +172,24 @@ def read_sidecar(root: str | Path) -> dict[str, Any]:
         raise ValueError(f"{path}: not valid JSON ({exc})") from exc
 
 
+def _sidecar_or_empty(root: str | Path) -> dict[str, Any]:
+    """The dataset's sidecar, or {} where it is missing or unreadable: what the ``recorded_*`` readers fall back on
+    (a dataset written by another tool records none of it)."""
+    try:
+        return read_sidecar(root)
+    except (OSError, ValueError):
+        return {}
+
+
 def recorded_bounds(root: str | Path) -> list[list[float]]:
     """The task workspace boxes a sigma dataset records (``"bounds": {task: box}``); [] if there are none."""
-    try:
-        return [list(b) for b in read_sidecar(root).get("bounds", {}).values()]
-    except (OSError, ValueError):
-        return []
+    return [list(b) for b in _sidecar_or_empty(root).get("bounds", {}).values()]
 
 
 def recorded_instruction_bounds(root: str | Path) -> dict[str, list[float]]:
     """instruction -> its task's workspace box, from a sigma dataset's ``meta/sigma.json`` (each episode's
     ``instruction`` and ``task``, and ``"bounds": {task: box}``); {} if the sidecar records neither."""
-    try:
-        sidecar = read_sidecar(root)
-    except (OSError, ValueError):
-        return {}
+    sidecar = _sidecar_or_empty(root)
     boxes = sidecar.get("bounds", {})
     return {
         str(ep["instruction"]): list(boxes[ep["task"]])
@@ -198,13 +201,9 @@ def recorded_instruction_bounds(root: str | Path) -> dict[str, list[float]]:
 def recorded_instruction_tasks(root: str | Path) -> dict[str, str]:
     """instruction -> the task it belongs to (``"put the milk in its bin"`` -> ``"pick_place"``), from the episode
     records of a sigma dataset's ``meta/sigma.json``; {} if there is no readable sidecar."""
-    try:
-        sidecar = read_sidecar(root)
-    except (OSError, ValueError):
-        return {}
     return {
         str(ep["instruction"]): str(ep["task"])
-        for ep in sidecar.get("episodes", [])
+        for ep in _sidecar_or_empty(root).get("episodes", [])
         if "instruction" in ep and "task" in ep
     }
 
