@@ -222,6 +222,13 @@ class SigmaConfig(PreTrainedConfig):
     # Channels of the heads' local encoder (network.LocalEncoder: full-resolution dilated convolutions pooled at
     # the keyframe position); 0 = off. None = from preset.
     local_channels: int | None = None
+    # Rotation-equivariant yaw scores (sigma_policy/yaw_scan.py): side (pixels) of the top-view crop around the
+    # keyframe position that is turned to every yaw bin and scored by one CNN (0 = off); its channels; the training
+    # jitter (pixels, uniform per axis) of the crop's centre about the target's projection, standing in for the
+    # translation error the crop sits with at inference.
+    yaw_scan_px: int = 0
+    yaw_scan_channels: int = 16
+    yaw_scan_jitter_px: float = 1.0
     logit_scale_init: float = math.log(1 / 0.07)
     logit_scale_max: float | None = None
     projection_activation: bool = True

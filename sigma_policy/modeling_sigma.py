@@ -245,8 +245,19 @@ class SigmaPolicy(PreTrainedPolicy):
 
         target_uv = self.renderer.project(world_to_cube(pos[:, None], bounds))[:, 0]  # (B, V, 2)
         target_hm = gaussian_heatmaps(target_uv, cfg.img_size, sigma=cfg.gt_heatmap_sigma)
+        scan_uv = None
+        if cfg.yaw_scan_px:
+            # The scan's crop sits where inference will put it, give or take inference's translation error.
+            scan_uv = target_uv + (torch.rand_like(target_uv) * 2 - 1) * cfg.yaw_scan_jitter_px
         out = self._run_network(
-            views, tasks, batch, bounds, goal_views=goal_views, transforms=transforms, head_heatmap=target_hm
+            views,
+            tasks,
+            batch,
+            bounds,
+            goal_views=goal_views,
+            transforms=transforms,
+            head_heatmap=target_hm,
+            head_uv=scan_uv,
         )
 
         # ---- behaviour cloning (per sample)
@@ -497,6 +508,7 @@ class SigmaPolicy(PreTrainedPolicy):
         goal_views: Tensor | None = None,
         transforms: Tensor | None = None,
         head_heatmap: Tensor | None = None,
+        head_uv: Tensor | None = None,
     ) -> NetworkOutput:
         tokens, sentence = self._language(tasks)
         proprio = self._proprio(batch, bounds, transforms)
@@ -514,4 +526,5 @@ class SigmaPolicy(PreTrainedPolicy):
                 goal_images=goal_views,
                 proprio=proprio,
                 head_heatmap=head_heatmap if self.network.local_encoder is not None else None,
+                head_uv=head_uv,
             )

@@ -17,9 +17,10 @@ T = ``img_size // patch_size`` patches per side, D = ``attn_dim``, L = language 
 6. Decoder: image tokens -> Linear D -> c -> per view conv k at T x T, bilinear x patch_size, conv k, concat ``d0``,
    conv 3x3 -> ``u`` (BV, ``final_dim``, H, W) -> conv 3x3 -> translation logits (B, V, H, W).
 7. Heads: [max over tokens (c*V, channel-major), heatmap-weighted sum of ``u`` (V*final_dim, view-major)] -> MLP
-   -> 3 x ``num_rotation_bins`` Euler-bin logits, 2 gripper logits, 2 collision logits. Not in the paper, both
+   -> 3 x ``num_rotation_bins`` Euler-bin logits, 2 gripper logits, 2 collision logits. Not in the paper, all
    off in ``paper``: ``local_channels`` adds a heatmap-weighted sum of full-resolution local features
-   (:class:`LocalEncoder`) and ``proprio_in_heads`` the proprio vector to the MLP's input.
+   (:class:`LocalEncoder`) and ``proprio_in_heads`` the proprio vector to the MLP's input; ``yaw_scan_px`` adds
+   rotation-equivariant scores of a turned top-view crop to the yaw logits (:class:`~sigma_policy.yaw_scan.YawScanner`).
 8. Goal branch (training, contrastive): the goal render shares steps 1-3 (own positional encoding), tokens are
    mean-pooled per view, concatenated over views and projected -> ``goal_feat`` (phi(g)).
 
@@ -40,6 +41,7 @@ from torch import Tensor, nn
 
 from sigma_policy.heatmap import gaussian_heatmaps, heatmap_to_cube_point
 from sigma_policy.renderer import project_points
+from sigma_policy.yaw_scan import YawScanner
 
 LRELU_SLOPE = 0.02
 
@@ -90,6 +92,12 @@ class NetworkConfig:
     # Width (pixels) of the Gaussian that pools the local features: in training the target heatmap has it, at
     # inference the same Gaussian sits at the predicted 3D point's projections, so the heads see the same pooling.
     head_pool_sigma: float = 1.5
+    # Rotation-equivariant yaw scores (not in the paper; sigma_policy/yaw_scan.py): ``yaw_scan_px`` > 0 turns a
+    # top-view crop of this many pixels, centred at the keyframe position (the target's in training, the predicted
+    # point's at inference), to every yaw bin, scores each with one CNN of ``yaw_scan_channels`` channels and adds
+    # the scores to the yaw logits.
+    yaw_scan_px: int = 0
+    yaw_scan_channels: int = 16
     logit_scale_init: float = math.log(1 / 0.07)
     channels_last: bool = False  # NHWC conv activations: the layout tensor-core convolutions want on GPUs
 
@@ -104,6 +112,8 @@ class NetworkConfig:
             raise ValueError(f"num_queries must be >= 1, got {self.num_queries}")
         if self.local_channels < 0 or (self.local_channels and not self.local_dilations):
             raise ValueError("local_channels must be >= 0, with at least one dilation when > 0")
+        if self.yaw_scan_px < 0 or (self.yaw_scan_px and (self.yaw_scan_px % 2 or self.yaw_scan_px < 8)):
+            raise ValueError(f"yaw_scan_px must be 0 (off) or an even number >= 8, got {self.yaw_scan_px}")
         if self.im_channels % 4 or self.attn_dim % 4:
             raise ValueError("im_channels and attn_dim must be multiples of 4 (GroupNorm(4, .))")
 
@@ -306,14 +316,18 @@ class LocalEncoder(nn.Sequential):
         )
 
 
-def point_heatmaps(logits: Tensor, sigma: float) -> Tensor:
-    """Gaussians ``(B, V, H, W)`` of width ``sigma`` pixels at the projections of the 3D point the translation
-    logits ``(B, V, H, W)`` predict (:func:`~sigma_policy.heatmap.heatmap_to_cube_point`): the views agree on one
-    point, as the training target's projections do, even where one view's own peak lies elsewhere."""
+def predicted_uv(logits: Tensor) -> Tensor:
+    """Pixel coordinates ``(B, V, 2)`` of the projections of the 3D point the translation logits ``(B, V, H, W)``
+    predict (:func:`~sigma_policy.heatmap.heatmap_to_cube_point`): the views agree on one point, as the training
+    target's projections do, even where one view's own peak lies elsewhere."""
     size = logits.shape[-1]
     point = heatmap_to_cube_point(logits, size)
-    uv = project_points(point[:, None].to(logits.dtype), size)[0][:, 0]
-    return gaussian_heatmaps(uv, size, sigma=sigma)
+    return project_points(point[:, None].to(logits.dtype), size)[0][:, 0]
+
+
+def point_heatmaps(logits: Tensor, sigma: float) -> Tensor:
+    """Gaussians ``(B, V, H, W)`` of width ``sigma`` pixels at :func:`predicted_uv`."""
+    return gaussian_heatmaps(predicted_uv(logits), logits.shape[-1], sigma=sigma)
 
 
 def heatmap_pool(heatmap: Tensor, features: Tensor) -> Tensor:
@@ -401,6 +415,11 @@ class SigmaNetwork(nn.Module):
             if cfg.local_channels
             else None
         )
+        self.yaw_scanner = (
+            YawScanner(cfg.in_channels, cfg.yaw_scan_channels, cfg.yaw_scan_px, cfg.num_rotation_bins)
+            if cfg.yaw_scan_px
+            else None
+        )
         head_in = cfg.num_views * (c + cfg.final_dim + cfg.local_channels)
         head_in += cfg.proprio_dim if cfg.use_proprio and cfg.proprio_in_heads else 0
         self.feat_fc = nn.Sequential(
@@ -456,6 +475,7 @@ class SigmaNetwork(nn.Module):
         goal_images: Tensor | None = None,
         proprio: Tensor | None = None,
         head_heatmap: Tensor | None = None,
+        head_uv: Tensor | None = None,
     ) -> NetworkOutput:
         """Run the network.
 
@@ -469,6 +489,9 @@ class SigmaNetwork(nn.Module):
             head_heatmap: (B, V, H, W) weights that pool the local features for the heads (training: the target
                 heatmap); None = the same Gaussian at the predicted 3D point's projections (inference). Only with
                 ``local_channels``.
+            head_uv: (B, V, 2) pixel of the keyframe position where the yaw scan's crop is centred (training: the
+                target's projections); None = the predicted 3D point's projections (inference). Only with
+                ``yaw_scan_px``.
         """
         cfg = self.cfg
         b = images.shape[0]
@@ -525,9 +548,14 @@ class SigmaNetwork(nn.Module):
 
         head = self.feat_fc(torch.cat(head_in, dim=1))
         nb = cfg.num_rotation_bins
+        rot_logits = head[:, : 3 * nb].reshape(b, 3, nb)
+        if self.yaw_scanner is not None:
+            uv = predicted_uv(trans.detach()) if head_uv is None else head_uv
+            scan = self.yaw_scanner(images, uv).to(rot_logits.dtype)
+            rot_logits = torch.cat([rot_logits[:, :2], (rot_logits[:, 2] + scan)[:, None]], dim=1)
         out = NetworkOutput(
             trans=trans,
-            rot_logits=head[:, : 3 * nb].reshape(b, 3, nb),
+            rot_logits=rot_logits,
             grip_logits=head[:, 3 * nb : 3 * nb + 2],
             collision_logits=head[:, 3 * nb + 2 : 3 * nb + 4],
         )

@@ -522,3 +522,24 @@ def test_mask_same_task_leaves_no_state_language_negatives_from_the_same_task(ti
     torch.manual_seed(0)
     _, info = policy.forward(batch)
     assert info["contrastive_sl_loss"] > 0
+
+
+def test_yaw_scan_crop_sits_at_the_target_in_training_and_at_the_prediction_at_inference(tiny_root):
+    """With ``yaw_scan_px`` the scan's crop is centred within ``yaw_scan_jitter_px`` of the target's projections in
+    training (the target heatmap's peak says where they are), and at inference the network places it itself."""
+    _, policy, pre, post, ds = build(tiny_root, yaw_scan_px=8, yaw_scan_jitter_px=1.0)
+    seen = {}
+    policy.network.register_forward_hook(lambda _m, _a, kw, _o: seen.update(kw), with_kwargs=True)
+    loss, _ = policy.forward(pre(training_batch(ds, [0, 1, 3, 4])))
+    loss.backward()
+    assert all(p.grad is not None for p in policy.network.yaw_scanner.parameters())
+    heatmap, uv = seen["head_heatmap"], seen["head_uv"]
+    size = heatmap.shape[-1]
+    peak = heatmap.flatten(2).argmax(-1)
+    peak_uv = torch.stack([peak % size, peak // size], dim=-1).float() + 0.5
+    visible = heatmap.flatten(2).sum(-1) > 0
+    assert ((uv - peak_uv).abs().amax(-1)[visible] <= 1.0 + 0.5 + 1e-4).all()
+    policy.eval()
+    seen.clear()
+    action = post(policy.select_action(pre(single_observation(tiny_root, 1))))
+    assert seen["head_uv"] is None and action.shape == (1, 9)

@@ -248,3 +248,25 @@ def test_proprio_in_heads_widens_the_head_input():
     proprio = torch.randn(2, 12, requires_grad=True)
     net(img, tok, proprio=proprio).rot_logits.sum().backward()
     assert proprio.grad.abs().sum() > 0
+
+
+def test_yaw_scan_adds_to_the_yaw_logits_only_and_follows_the_given_centre():
+    """The scanner's scores join the yaw logits (roll and pitch are the MLP's alone); a given centre (the target's, in
+    training) replaces the predicted one, and the scanner's weights get gradients."""
+    cfg = dataclasses.replace(SMALL, yaw_scan_px=8, yaw_scan_channels=4)
+    net = SigmaNetwork(cfg, lang_token_dim=12, lang_sentence_dim=12)
+    img, tok, *_ = inputs(cfg)
+    plain = SigmaNetwork(SMALL, lang_token_dim=12, lang_sentence_dim=12)
+    plain.load_state_dict(net.state_dict(), strict=False)
+    with torch.no_grad():
+        with_scan, without = net(img, tok).rot_logits, plain(img, tok).rot_logits
+    torch.testing.assert_close(with_scan[:, :2], without[:, :2])
+    assert (with_scan[:, 2] - without[:, 2]).abs().max() > 1e-4
+    out = net(img, tok, head_uv=torch.full((2, 5, 2), 3.5))
+    assert not torch.allclose(
+        out.rot_logits[:, 2], net(img, tok).rot_logits[:, 2]
+    )  # predicted point elsewhere
+    out.rot_logits.sum().backward()
+    assert all(p.grad is not None and p.grad.abs().sum() > 0 for p in net.yaw_scanner.parameters())
+    with pytest.raises(ValueError, match="yaw_scan_px"):
+        dataclasses.replace(SMALL, yaw_scan_px=7)
