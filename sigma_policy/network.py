@@ -114,6 +114,10 @@ class NetworkConfig:
             raise ValueError("local_channels must be >= 0, with at least one dilation when > 0")
         if self.yaw_scan_px < 0 or (self.yaw_scan_px and (self.yaw_scan_px % 2 or self.yaw_scan_px < 8)):
             raise ValueError(f"yaw_scan_px must be 0 (off) or an even number >= 8, got {self.yaw_scan_px}")
+        if self.yaw_scan_px and self.num_rotation_bins % 2:
+            raise ValueError(
+                f"yaw_scan_px needs an even num_rotation_bins (half a turn), got {self.num_rotation_bins}"
+            )
         if self.im_channels % 4 or self.attn_dim % 4:
             raise ValueError("im_channels and attn_dim must be multiples of 4 (GroupNorm(4, .))")
 

@@ -270,3 +270,5 @@ def test_yaw_scan_adds_to_the_yaw_logits_only_and_follows_the_given_centre():
     assert all(p.grad is not None and p.grad.abs().sum() > 0 for p in net.yaw_scanner.parameters())
     with pytest.raises(ValueError, match="yaw_scan_px"):
         dataclasses.replace(SMALL, yaw_scan_px=7)
+    with pytest.raises(ValueError, match="even num_rotation_bins"):
+        dataclasses.replace(SMALL, yaw_scan_px=8, num_rotation_bins=45)
