@@ -29,6 +29,8 @@ import torch
 import torch.nn.functional as F
 from torch import Tensor, nn
 
+from sigma_policy.layers import ConvBlock, DenseBlock
+
 __all__ = ["YawScanner", "crop_views", "turned_crops"]
 
 TOP_VIEW = 0  # index of the top view in sigma_policy.renderer.VIEW_AXES
@@ -85,8 +87,6 @@ class YawScanner(nn.Module):
 
     def __init__(self, c_in: int, channels: int, crop_px: int, num_bins: int):
         super().__init__()
-        from sigma_policy.network import ConvBlock, DenseBlock
-
         self.crop_px, self.num_bins = crop_px, num_bins
         self.convs = nn.Sequential(
             ConvBlock(c_in, channels, 3),

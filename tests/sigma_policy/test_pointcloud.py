@@ -57,6 +57,7 @@ def test_cloud_round_trips_through_pixels() -> None:
 
 
 def test_fuse_crop_and_cube_mapping() -> None:
+    torch.manual_seed(0)  # unseeded, some draws left no point inside the box
     pts = torch.rand(2, 3, 4, 5, 3) * 2 - 1
     rgb = torch.rand(2, 3, 3, 4, 5)
     p, c = fuse_cameras(pts, rgb)
