@@ -53,31 +53,29 @@ def crop_views(images: Tensor, uv: Tensor, size: int) -> Tensor:
     return windows.permute(0, 3, 1, 2).reshape(b, v, c, size, size)
 
 
-def turned_crops(view: Tensor, uv: Tensor, size: int, num_bins: int) -> Tensor:
-    """``(B, K, C, size, size)`` crops of one view (B, C, H, W), centred exactly (bilinear) at ``uv`` (B, 2), the one
-    of bin ``k`` turned to ``theta_k`` (module docstring). ``K = num_bins``."""
+def turned_crops(view: Tensor, uv: Tensor, size: int, num_bins: int, count: int | None = None) -> Tensor:
+    """``(B, count, C, size, size)`` crops of one view (B, C, H, W), centred exactly (bilinear) at ``uv`` (B, 2), the
+    one of bin ``k`` turned to ``theta_k`` (module docstring) for the first ``count`` of ``num_bins`` bins (None:
+    all of them)."""
     b, c = view.shape[:2]
+    step, n = 2 * math.pi / num_bins, count or num_bins
     big = 2 * math.ceil(size * math.sqrt(2) / 2) + 2  # holds the turned window, even
     window = crop_views(view[:, None], uv[:, None], big)[:, 0]  # pixel big//2 holds uv
     # uv's place in the window, in grid_sample's normalised coordinates (align_corners=False).
     offset = 2 * (uv.detach().float() - uv.detach().float().floor()) / big  # (B, 2)
-    theta = (
-        torch.arange(num_bins, device=view.device, dtype=torch.float32) * (2 * math.pi / num_bins) - math.pi
-    )
+    theta = torch.arange(n, device=view.device, dtype=torch.float32) * step - math.pi
     cos, sin = theta.cos(), theta.sin()
     scale = size / big
-    affine = torch.zeros(b, num_bins, 2, 3, device=view.device)
+    affine = torch.zeros(b, n, 2, 3, device=view.device)
     affine[..., 0, 0], affine[..., 0, 1] = scale * cos, scale * sin
     affine[..., 1, 0], affine[..., 1, 1] = -scale * sin, scale * cos
     affine[..., :, 2] = offset[:, None, :]
-    grid = F.affine_grid(
-        affine.reshape(b * num_bins, 2, 3), [b * num_bins, c, size, size], align_corners=False
-    )
-    source = window[:, None].expand(b, num_bins, *window.shape[1:]).reshape(b * num_bins, *window.shape[1:])
+    grid = F.affine_grid(affine.reshape(b * n, 2, 3), [b * n, c, size, size], align_corners=False)
+    source = window[:, None].expand(b, n, *window.shape[1:]).reshape(b * n, *window.shape[1:])
     turned = F.grid_sample(
         source, grid.to(source.dtype), mode="bilinear", padding_mode="zeros", align_corners=False
     )
-    return turned.reshape(b, num_bins, c, size, size)
+    return turned.reshape(b, n, c, size, size)
 
 
 class YawScanner(nn.Module):
@@ -103,7 +101,7 @@ class YawScanner(nn.Module):
         ``k + K/2`` (a half turn apart) get the same score: the parallel gripper grasps the same way at both, and
         which of the two the hand takes depends on its wrist, which the MLP (with the gripper's orientation) knows."""
         half = self.num_bins // 2
-        crops = turned_crops(images[:, TOP_VIEW], uv[:, TOP_VIEW], self.crop_px, self.num_bins)[:, :half]
+        crops = turned_crops(images[:, TOP_VIEW], uv[:, TOP_VIEW], self.crop_px, self.num_bins, count=half)
         b = crops.shape[0]
         maps = self.convs(crops.flatten(0, 1))
         return self.score(maps.flatten(1)).reshape(b, half).repeat(1, 2)
