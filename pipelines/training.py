@@ -56,13 +56,36 @@ class TrainRun:
         otherwise None, after clearing ``output_dir`` (lerobot-train refuses an existing one without
         ``--resume``) unless an interrupted run left a checkpoint to resume from (:attr:`resumable`)."""
         if record.exists() and (self.checkpoint / "config.json").exists():
+            self.check_same_options(self.checkpoint / "train_config.json")
             print(f"{name}: reusing the finished run in {self.output_dir}", flush=True)
             return json.loads(record.read_text())
         if self.resumable is not None:
+            self.check_same_options(self.resumable / "pretrained_model" / "train_config.json")
             print(f"{name}: resuming the interrupted run from {self.resumable.resolve()}", flush=True)
         elif self.output_dir.exists():
             shutil.rmtree(self.output_dir)
         return None
+
+    def check_same_options(self, train_config: Path) -> None:
+        """Refuse to reuse or resume a run whose saved ``train_config.json`` disagrees with this run's
+        ``--policy.*``, ``--steps`` or ``--seed`` arguments (the output directory's name does not say how its run
+        was trained: a benchmark rerun with other ``--policy_args`` would otherwise trust the old checkpoint)."""
+        if not train_config.exists():
+            return
+        saved = json.loads(train_config.read_text())
+        for arg in self.arguments():
+            key, _, value = arg.removeprefix("--").partition("=")
+            if key.startswith("policy."):
+                where, name = saved.get("policy", {}), key.removeprefix("policy.")
+            elif key in ("steps", "seed"):
+                where, name = saved, key
+            else:
+                continue
+            if name in where and not _same_value(value, where[name]):
+                raise ValueError(
+                    f"{train_config} was trained with --{key}={json.dumps(where[name])}, this run asks for "
+                    f"--{key}={value}: delete {self.output_dir} or choose another output directory"
+                )
 
     def command(self) -> list[str]:
         """The ``lerobot-train`` command line: a fresh run (:meth:`arguments`), or ``--resume=true`` from
@@ -98,6 +121,22 @@ class TrainRun:
             f"--seed={self.seed}",
             *self.extra_args,
         ]
+
+
+def _same_value(arg: str, stored: object) -> bool:
+    """Whether a command-line value (``true``, ``0.003``, ``[-0.4,0.5]``, ``cpu``) means the value a
+    ``train_config.json`` stored."""
+    try:
+        parsed = json.loads(arg)
+    except json.JSONDecodeError:
+        return arg == str(stored)
+    if isinstance(parsed, list) and isinstance(stored, list):
+        return len(parsed) == len(stored) and all(
+            _same_value(json.dumps(a), b) for a, b in zip(parsed, stored, strict=True)
+        )
+    if isinstance(parsed, (int, float)) and isinstance(stored, (int, float)) and not isinstance(stored, bool):
+        return abs(float(parsed) - float(stored)) <= 1e-9 * max(1.0, abs(float(stored)))
+    return parsed == stored
 
 
 def start(run: TrainRun, log_path: Path | None = None, threads: int | None = None) -> subprocess.Popen:

@@ -401,11 +401,11 @@ class SigmaConfig(PreTrainedConfig):
             and f"{key}{DEPTH_SUFFIX}" in feats
         )
 
-    def resolve_scene_bounds(self, dataset_root: str | Path | None = None) -> list[float]:
-        """Fill ``scene_bounds`` when unset: the union of the task boxes a sigma dataset records in
-        ``meta/sigma.json`` (``"bounds": {task: box}``), else :data:`DEFAULT_SCENE_BOUNDS`; with
-        ``per_task_bounds``, also ``instruction_bounds`` when empty, and with ``mask_same_task``
-        ``instruction_tasks``. Returns ``scene_bounds``."""
+    def fill_from_dataset(self, dataset_root: str | Path | None = None) -> list[float]:
+        """Fill the fields that come from the dataset when they are unset: ``scene_bounds`` (the union of the task
+        boxes a sigma dataset records in ``meta/sigma.json``, ``"bounds": {task: box}``, else
+        :data:`DEFAULT_SCENE_BOUNDS`), with ``per_task_bounds`` ``instruction_bounds``, and with
+        ``mask_same_task`` ``instruction_tasks``. Returns ``scene_bounds``."""
         if self.per_task_bounds and not self.instruction_bounds and dataset_root is not None:
             self.instruction_bounds = recorded_instruction_bounds(dataset_root)
         if self.mask_same_task and not self.instruction_tasks and dataset_root is not None:
@@ -418,7 +418,24 @@ class SigmaConfig(PreTrainedConfig):
                 self.scene_bounds = [float(v) for v in lo + hi]
             else:
                 self.scene_bounds = list(DEFAULT_SCENE_BOUNDS)
+        if self.yaw_scan_px:
+            self._check_square_boxes()
         return self.scene_bounds
+
+    def _check_square_boxes(self) -> None:
+        """The yaw scan turns a top-view crop in pixels, which is a turn in the world only where a pixel is as wide
+        in x as in y (docs/method.md §7.1): every box the policy renders with must be square in x-y."""
+        if self.per_task_bounds and self.instruction_bounds:
+            boxes = {f"instruction_bounds[{k!r}]": b for k, b in self.instruction_bounds.items()}
+        else:
+            boxes = {"scene_bounds": self.scene_bounds}
+        for name, box in boxes.items():
+            dx, dy = box[3] - box[0], box[4] - box[1]
+            if abs(dx - dy) > 1e-6 * max(dx, dy):
+                raise ValueError(
+                    f"yaw_scan_px needs boxes as wide in x as in y (docs/method.md §7.1): {name} = {list(box)} "
+                    f"is {dx:.3f} m x {dy:.3f} m"
+                )
 
     def network_config(self) -> NetworkConfig:
         """Architecture numbers for ``SigmaNetwork`` (language dimensions come from the text encoder)."""

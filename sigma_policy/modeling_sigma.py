@@ -92,7 +92,7 @@ class SigmaPolicy(PreTrainedPolicy):
         del dataset_stats, kwargs  # no statistics needed: the scene box is the normalisation
         lerobot_patches.install()  # faster multi-frame reads of the datasets this policy trains on (idempotent)
         config.validate_features()
-        config.resolve_scene_bounds(getattr(dataset_meta, "root", None))
+        config.fill_from_dataset(getattr(dataset_meta, "root", None))
         if (
             dataset_meta is not None
             and config.use_contrastive

@@ -6,6 +6,8 @@ import json
 import os
 import shutil
 
+import pytest
+
 from pipelines.training import TrainRun, train
 from tests.sigma_policy.tiny_dataset import BOUNDS, write_tiny_keyframe_dataset
 
@@ -46,3 +48,48 @@ def test_an_interrupted_run_resumes_from_its_last_checkpoint(tmp_path):
     state = json.loads((checkpoints / "last" / "training_state" / "training_step.json").read_text())
     assert state["step"] == 4 and (ckpt / "model.safetensors").exists()
     assert os.readlink(checkpoints / "last") == "000004"
+
+
+def test_a_finished_run_is_reused_only_with_the_options_it_was_trained_with(tmp_path):
+    """``reuse_or_clear`` compares the run's ``--policy.*``, ``--steps`` and ``--seed`` arguments with the saved
+    ``train_config.json``: the same options reuse the record, another option is a clear error and clears nothing."""
+    run = TrainRun(
+        dataset_root=tmp_path / "data",
+        output_dir=tmp_path / "train",
+        steps=6000,
+        batch_size=8,
+        scene_bounds=(-0.4, -0.5, 0.75, 0.6, 0.5, 1.75),
+        extra_args=[
+            "--policy.yaw_scan_px=24",
+            "--policy.use_cpu_bf16_autocast=true",
+            "--policy.optimizer_lr=0.003",
+        ],
+    )
+    run.checkpoint.mkdir(parents=True)
+    (run.checkpoint / "config.json").write_text("{}")
+    saved = {
+        "steps": 6000,
+        "seed": 0,
+        "dataset": {"root": "/elsewhere"},  # not compared: a moved dataset is the same data
+        "policy": {
+            "type": "sigma",
+            "device": "cpu",
+            "preset": "small",
+            "scene_bounds": [-0.4, -0.5, 0.75, 0.6, 0.5, 1.75],
+            "yaw_scan_px": 24,
+            "use_cpu_bf16_autocast": True,
+            "optimizer_lr": 0.003,
+        },
+    }
+    (run.checkpoint / "train_config.json").write_text(json.dumps(saved))
+    record = tmp_path / "train_seconds.json"
+    record.write_text(json.dumps({"seconds": 60.0}))
+    assert run.reuse_or_clear(record, "suite") == {"seconds": 60.0}
+    for i, changed in ((0, "--policy.yaw_scan_px=0"), (1, "--policy.use_cpu_bf16_autocast=false")):
+        args = [changed if j == i else a for j, a in enumerate(run.extra_args)]
+        other = TrainRun(**{**run.__dict__, "extra_args": args})
+        with pytest.raises(ValueError, match=rf"was trained with --policy\..* asks for {changed}"):
+            other.reuse_or_clear(record, "suite")
+    with pytest.raises(ValueError, match="--steps=6000"):
+        TrainRun(**{**run.__dict__, "steps": 3000}).reuse_or_clear(record, "suite")
+    assert run.checkpoint.is_dir()  # nothing cleared

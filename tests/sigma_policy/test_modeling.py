@@ -498,11 +498,26 @@ def test_per_task_bounds_are_read_from_the_dataset_sidecar(tmp_path):
     }
     assert recorded_instruction_bounds(tmp_path) == expected
     cfg = SigmaConfig(preset="small", device="cpu", per_task_bounds=True, mask_same_task=True)
-    assert cfg.resolve_scene_bounds(tmp_path) == [-0.4, -0.5, 0.75, 0.6, 0.5, 1.75]
+    assert cfg.fill_from_dataset(tmp_path) == [-0.4, -0.5, 0.75, 0.6, 0.5, 1.75]
     assert cfg.instruction_bounds == expected
     assert cfg.instruction_tasks == {"lift the cube": "lift", "put the milk in its bin": "pick_place"}
     assert recorded_instruction_bounds(tmp_path / "missing") == {}
     assert recorded_instruction_tasks(tmp_path / "missing") == {}
+
+
+def test_yaw_scan_refuses_a_box_not_square_in_x_y():
+    """The yaw scan's turned crop is a turn in the world only on square pixels: a box the policy renders with must
+    be as wide in x as in y; with per-task boxes those are checked, not the union."""
+    wide = [-0.4, -0.5, 0.75, 0.6, 0.6, 1.75]  # 1.0 m x 1.1 m
+    with pytest.raises(ValueError, match=r"scene_bounds = .* is 1\.000 m x 1\.100 m"):
+        SigmaConfig(preset="small", device="cpu", yaw_scan_px=24, scene_bounds=wide).fill_from_dataset()
+    cfg = SigmaConfig(preset="small", device="cpu", yaw_scan_px=24, per_task_bounds=True, scene_bounds=wide)
+    cfg.instruction_bounds = {"lift the cube": [-0.18, -0.18, 0.75, 0.18, 0.18, 1.11]}
+    assert cfg.fill_from_dataset() == wide  # the union is only a fallback
+    cfg.instruction_bounds["open the door"] = [-0.35, -0.55, 0.75, 0.35, 0.25, 1.45]
+    with pytest.raises(ValueError, match=r"instruction_bounds\['open the door'\]"):
+        cfg.fill_from_dataset()
+    SigmaConfig(preset="small", device="cpu", scene_bounds=wide).fill_from_dataset()  # no scan: any box
 
 
 def test_mask_same_task_leaves_no_state_language_negatives_from_the_same_task(tiny_root):
