@@ -132,7 +132,7 @@ def _same_value(arg: str, stored: object) -> bool:
         return arg == str(stored)
     if isinstance(parsed, list) and isinstance(stored, list):
         return len(parsed) == len(stored) and all(
-            _same_value(json.dumps(a), b) for a, b in zip(parsed, stored, strict=True)
+            _same_value(json.dumps(a), b) for a, b in zip(parsed, stored, strict=False)
         )
     if isinstance(parsed, (int, float)) and isinstance(stored, (int, float)) and not isinstance(stored, bool):
         return abs(float(parsed) - float(stored)) <= 1e-9 * max(1.0, abs(float(stored)))

@@ -422,13 +422,16 @@ class SigmaConfig(PreTrainedConfig):
             self._check_square_boxes()
         return self.scene_bounds
 
+    def task_boxes(self) -> dict[str, list[float]]:
+        """The per-instruction boxes the policy renders with: ``instruction_bounds`` with ``per_task_bounds`` (when
+        any are recorded), else none, and every sample is rendered in ``scene_bounds``."""
+        return self.instruction_bounds if self.per_task_bounds and self.instruction_bounds else {}
+
     def _check_square_boxes(self) -> None:
         """The yaw scan turns a top-view crop in pixels, which is a turn in the world only where a pixel is as wide
         in x as in y (docs/method.md §7.1): every box the policy renders with must be square in x-y."""
-        if self.per_task_bounds and self.instruction_bounds:
-            boxes = {f"instruction_bounds[{k!r}]": b for k, b in self.instruction_bounds.items()}
-        else:
-            boxes = {"scene_bounds": self.scene_bounds}
+        boxes = {f"instruction_bounds[{k!r}]": b for k, b in self.task_boxes().items()}
+        boxes = boxes or {"scene_bounds": self.scene_bounds}
         for name, box in boxes.items():
             dx, dy = box[3] - box[0], box[4] - box[1]
             if abs(dx - dy) > 1e-6 * max(dx, dy):

@@ -387,8 +387,8 @@ class SigmaPolicy(PreTrainedPolicy):
     def _bounds(self, tasks: list[str]) -> Tensor:
         """(B, 6) world box of each sample: its instruction's task box with ``per_task_bounds`` (an instruction
         the policy was not trained on gets ``scene_bounds``, with a warning once), else ``scene_bounds``."""
-        boxes = self.config.instruction_bounds
-        if not self.config.per_task_bounds or not boxes:
+        boxes = self.config.task_boxes()
+        if not boxes:
             return self.scene_bounds.expand(len(tasks), 6)
         unknown = {t for t in tasks if t not in boxes} - self._warned_instructions
         if unknown:
