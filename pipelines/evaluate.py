@@ -103,10 +103,11 @@ def failure_reason(result: EpisodeResult, max_keyframes: int) -> str | None:
     another variation's success state: the policy did the other instruction); ``wrong object at keyframe k: went
     for <variation>`` (the gripper first closed nearer another variation's object than the instructed one, see
     :func:`nearest_variation`: the policy did not ground the instruction); ``grasp missed at keyframe k`` (the
-    gripper closed on nothing: finger gap below 1 cm); ``dropped at keyframe k`` (something was held, then the
-    gripper opened away from success); ``repeats keyframe k`` (the next keyframe is the same pose and gripper
-    command: stuck); ``keyframe k not reached (stalled|budget)`` (the executor could not get the arm there);
-    ``timeout after N keyframes`` (every move converged but the task never succeeded).
+    gripper closed on nothing: finger gap below 1 cm once the close has finished, :func:`_settled_gap`);
+    ``dropped at keyframe k`` (something was held, then the gripper opened away from success); ``repeats keyframe
+    k`` (the next keyframe is the same pose and gripper command: stuck); ``keyframe k not reached
+    (stalled|budget)`` (the executor could not get the arm there); ``timeout after N keyframes`` (every move
+    converged but the task never succeeded).
     """
     if result.success:
         return None
@@ -115,12 +116,12 @@ def failure_reason(result: EpisodeResult, max_keyframes: int) -> str | None:
     if result.other_variation is not None:
         return f"wrong object: did {result.other_variation}"
     held = False
-    for step in result.trace:
+    for i, step in enumerate(result.trace):
         k = step["keyframe"]
         nearest = step.get("nearest")
         if step["closed_now"] and not held and nearest is not None and nearest != result.variation:
             return f"wrong object at keyframe {k}: went for {nearest}"
-        if step["closed_now"] and step["finger_gap_m"] < EMPTY_GRIP_GAP_M:
+        if step["closed_now"] and _settled_gap(result.trace, i) < EMPTY_GRIP_GAP_M:
             return f"grasp missed at keyframe {k}"
         held = held or step["closed_now"]
         if held and step["opened_now"]:
@@ -135,6 +136,15 @@ def failure_reason(result: EpisodeResult, max_keyframes: int) -> str | None:
     return f"timeout after {len(result.trace)} keyframes" + (
         "" if len(result.trace) >= max_keyframes else " (stopped)"
     )
+
+
+def _settled_gap(trace: list[dict], i: int) -> float:
+    """The finger gap once the close at ``trace[i]`` has finished: a close whose arm stalled (blocked on the object)
+    can end before the fingers meet, so the next keyframe's gap counts too unless it opens the gripper."""
+    gap = trace[i]["finger_gap_m"]
+    if i + 1 < len(trace) and not trace[i + 1]["opened_now"]:
+        gap = min(gap, trace[i + 1]["finger_gap_m"])
+    return gap
 
 
 def wilson_interval(successes: int, n: int, z: float = 1.96) -> tuple[float, float]:

@@ -33,6 +33,18 @@ PREGRASP, GRASP, LIFT = (0.0, 0.0, 0.9), (0.0, 0.0, 0.82), (0.0, 0.0, 0.97)
             [_step(1, PREGRASP), _step(2, GRASP), _step(3, GRASP, 0.0, closed=True, gap=0.002)],
             "grasp missed at keyframe 3",
         ),
+        # the approach stalled on the object and the close ended before the fingers met: they meet by the next
+        # keyframe, so the grasp held nothing (it used to read as "dropped" when the gripper later opened)
+        (
+            [
+                _step(1, PREGRASP),
+                _step(2, GRASP, status="stalled"),
+                _step(3, GRASP, 0.0, status="stalled", closed=True, gap=0.064),
+                _step(4, LIFT, 0.0, gap=0.001),
+                _step(5, LIFT, 1.0, opened=True),
+            ],
+            "grasp missed at keyframe 3",
+        ),
         # held the cube, then let go away from success
         (
             [_step(1, GRASP, 0.0, closed=True, gap=0.04), _step(2, LIFT, 1.0, opened=True)],
