@@ -1,5 +1,5 @@
-"""Suite benchmark: one multi-task ``small`` Σ-agent trained on 2 CPU cores in under two hours, evaluated on every
-variation of Lift, Stack, PickPlace and NutAssembly.
+"""Suite benchmark: one multi-task Σ-agent (the ``suite`` preset) trained on 2 CPU cores in about an hour,
+evaluated on every variation of Lift, Stack, PickPlace and NutAssembly.
 
 One command collects the keyframe demonstrations (``--episodes`` per variation, seeds from 0) and held-out
 keyframes (``--heldout_episodes`` per variation, seeds from 50000), trains the policy with the stock
@@ -7,30 +7,27 @@ keyframes (``--heldout_episodes`` per variation, seeds from 50000), trains the p
 scores every checkpoint on training and held-out keyframes (``sigma-diagnose``) and evaluates the last one closed
 loop on held-out seeds (``sigma-eval``, from 100000, Wilson 95% intervals, failure reasons). Every stage resumes:
 finished collections, checkpoints and evaluations are reused, and an interrupted ``lerobot-train`` continues from
-its last checkpoint (``--resume=true``).
+its last checkpoint (``--resume=true``); a run trained with other options is refused, not reused.
 
-Each task keeps its own scene box (``--policy.per_task_bounds=true``): Lift and Stack are rendered in their 36 cm
-box, PickPlace and NutAssembly in theirs, so adding tasks does not coarsen the views of the others.
+The ``suite`` preset (``sigma_policy/configuration_sigma.py``) is the ``small`` network with each task in its own
+scene box (``per_task_bounds``: Lift and Stack are rendered in their 36 cm box, PickPlace and NutAssembly in theirs,
+so adding tasks does not coarsen the views of the others), the rotation-equivariant yaw scan (``yaw_scan_px=24``,
+docs/method.md §7.1: NutAssembly 15/80 over two training seeds against 2/80 without, the suite 173/360 against
+151/360) and a peak learning rate of 3e-3 (``small``'s 1e-2 underfit on four tasks with its 2000-step decay and
+diverged with the decay stretched; docs/learning.md). The cosine decay is stretched over the whole run
+(``--policy.scheduler_decay_steps`` = ``--steps``) unless ``--schedule_steps`` says otherwise; each schedule trains
+into its own run directory (``runs/seed<S>_decay<D>_lr<LR>``).
 
     python -m benchmarks.bench_suite                                  # one training seed
     python -m benchmarks.bench_suite --seeds '[0,1]'                  # both seeds
-    python -m benchmarks.bench_suite --schedule_steps 2000 --lr null  # the small preset's own schedule (first run)
+    python -m benchmarks.bench_suite --preset small --lr 0.01 --schedule_steps 2000 --policy_args '[]'
+                                                                      # the small preset's recipe, for comparison
     python -m benchmarks.bench_suite --device cuda --workers 16 --output_dir outputs/bench_suite_gpu --publish false
-                                                                      # on a GPU (docs/gpu.md; not yet measured)
+                                                                      # on a GPU (docs/gpu.md)
 
-The learning rate peaks at 3e-3 (``--lr``; ``null`` keeps the ``small`` preset's 1e-2) and follows a cosine decay
-stretched over the whole run (``--policy.scheduler_decay_steps`` = ``--steps``) unless ``--schedule_steps`` says
-otherwise. On four tasks the preset's 1e-2 underfit with its own 2000-step decay (lr/100 for the last 4000 steps)
-and diverged with the decay stretched; 3e-3 fitted the training keyframes to 0.43 cm and scored 80/180
-(docs/learning.md). Each schedule trains into its own run directory (``runs/seed<S>_decay<D>[_lr<LR>]``).
-
-The rotation-equivariant yaw scan (``--policy.yaw_scan_px=24``, docs/method.md §7.1) is on: with it NutAssembly
-scored 15/80 over two training seeds against 2/80 without, and the suite 173/360 against 151/360
-(docs/learning.md "The suite with the yaw scan").
-
-Budget: 6000 steps of the ``small`` preset in bf16 autocast (``--policy.use_cpu_bf16_autocast``, a no-op on CPUs
-without native bf16) trained in 56 minutes on the 2-core AMD EPYC (2026-11-25), 60 with the yaw scan
-(2026-11-26); collection took 8 minutes and evaluation 5 (RESULTS.md).
+Budget: 6000 steps in bf16 autocast (``--policy.use_cpu_bf16_autocast``, a no-op on CPUs without native bf16)
+trained in 56 minutes on the 2-core AMD EPYC (2026-11-25), 60 with the yaw scan (2026-11-26); collection took 8
+minutes and evaluation 5 (RESULTS.md).
 """
 
 from __future__ import annotations
@@ -50,12 +47,8 @@ if TYPE_CHECKING:
 
 os.environ.setdefault("HF_HUB_OFFLINE", "1")
 
-# What the suite trains with beyond the small preset (see docs/learning.md).
-SUITE_ARGS = [
-    "--policy.per_task_bounds=true",
-    "--policy.use_cpu_bf16_autocast=true",
-    "--policy.yaw_scan_px=24",
-]
+# What the suite trains with beyond its preset: bf16 autocast on CPUs that have it (docs/learning.md "Training speed").
+SUITE_ARGS = ["--policy.use_cpu_bf16_autocast=true"]
 
 
 @dataclass
@@ -77,9 +70,11 @@ class SuiteBenchConfig:
     seeds: list[int] = field(default_factory=lambda: [0])
     # Steps of the cosine learning-rate decay (--policy.scheduler_decay_steps); None: the whole run (`steps`).
     schedule_steps: int | None = None
-    # Peak learning rate (--policy.optimizer_lr); None: the small preset's 1e-2, which diverged here (docs/learning.md).
-    lr: float | None = 3e-3
-    # lerobot-train arguments beyond the small preset.
+    # The policy preset (configuration_sigma.PRESETS): `suite` is `small` with per-task boxes, the yaw scan and lr 3e-3.
+    preset: str = "suite"
+    # Peak learning rate (--policy.optimizer_lr); None: the preset's (suite 3e-3; small's 1e-2 diverged here).
+    lr: float | None = None
+    # lerobot-train arguments beyond the preset.
     policy_args: list[str] = field(default_factory=lambda: list(SUITE_ARGS))
     # Closed-loop episodes per variation (seeds from 100000) and keyframes per episode.
     eval_episodes: int = 20
@@ -98,15 +93,14 @@ class SuiteBenchConfig:
 
     @property
     def peak_lr(self) -> float:
-        """The peak learning rate: ``lr``, else the ``small`` preset's."""
+        """The peak learning rate: ``lr``, else the preset's."""
         from sigma_policy.configuration_sigma import PRESETS
 
-        return self.lr or PRESETS["small"]["optimizer_lr"]
+        return self.lr or PRESETS[self.preset]["optimizer_lr"]
 
     def run_dir(self, seed: int) -> Path:
         """Where training seed ``seed`` of this schedule trains, is diagnosed and is evaluated."""
-        lr = f"_lr{self.lr:g}" if self.lr else ""
-        return self.output_dir / "runs" / f"seed{seed}_decay{self.decay_steps}{lr}"
+        return self.output_dir / "runs" / f"seed{seed}_decay{self.decay_steps}_lr{self.peak_lr:g}"
 
     def train_run(self, seed: int, train_root: Path) -> TrainRun:
         """The ``lerobot-train`` run of training seed ``seed`` on the dataset at ``train_root``."""
@@ -119,12 +113,18 @@ class SuiteBenchConfig:
             steps=self.steps,
             batch_size=self.batch_size,
             scene_bounds=scene_bounds(self.tasks),
+            preset=self.preset,
             seed=seed,
             device=self.device,
             job_name=f"suite_seed{seed}",
             save_freq=max(1, self.steps // self.checkpoints),
             extra_args=[*self.policy_args, *self.schedule_args],
         )
+
+    @property
+    def preset_args(self) -> list[str]:
+        """The policy's options as the table names them: the preset, then ``policy_args``."""
+        return [f"--policy.preset={self.preset}", *self.policy_args]
 
     @property
     def schedule_args(self) -> list[str]:
@@ -174,7 +174,7 @@ def markdown(cfg: SuiteBenchConfig, results: list[dict]) -> str:
     head = (
         f"Tasks {', '.join(cfg.tasks)}: {cfg.episodes} demonstrations per variation (seeds from 0), held-out "
         f"keyframes from {cfg.heldout_episodes} more per variation (seeds from 50000); 4 cameras at "
-        f"{cfg.image_size}²; one multi-task `small` policy, {' '.join(f'`{a}`' for a in cfg.policy_args)}, "
+        f"{cfg.image_size}²; one multi-task policy, {' '.join(f'`{a}`' for a in cfg.preset_args)}, "
         f"{cfg.steps} `lerobot-train` steps × batch {cfg.batch_size}, peak learning rate {cfg.peak_lr:g} and its "
         f"cosine decay over {cfg.decay_steps} steps, {cfg.device.upper()}; closed loop: `sigma-eval`, "
         f"{cfg.eval_episodes} episodes per variation (seeds from 100000), ≤ {cfg.max_keyframes} keyframes. "

@@ -73,8 +73,12 @@ class TrainRun:
         if not train_config.exists():
             return
         saved = json.loads(train_config.read_text())
-        for arg in self.arguments():
+        arguments = self.arguments()
+        for arg in arguments:
             key, _, value = arg.removeprefix("--").partition("=")
+            if key == "policy.preset" and self.policy_type == "sigma":
+                self._check_same_preset(value, arguments, saved.get("policy", {}), train_config)
+                continue
             if key.startswith("policy."):
                 where, name = saved.get("policy", {}), key.removeprefix("policy.")
             elif key in ("steps", "seed"):
@@ -85,6 +89,23 @@ class TrainRun:
                 raise ValueError(
                     f"{train_config} was trained with --{key}={json.dumps(where[name])}, this run asks for "
                     f"--{key}={value}: delete {self.output_dir} or choose another output directory"
+                )
+
+    def _check_same_preset(self, preset: str, arguments: list[str], saved: dict, train_config: Path) -> None:
+        """A preset is the values it fills: every field of ``preset`` that no argument sets must equal the saved
+        one (so a ``suite`` run reuses a ``small`` run given the suite's options one by one, and refuses a ``small``
+        run that left them at their defaults)."""
+        from sigma_policy.configuration_sigma import PRESETS
+
+        given = {
+            a.removeprefix("--policy.").partition("=")[0] for a in arguments if a.startswith("--policy.")
+        }
+        for name, value in PRESETS.get(preset, {}).items():
+            if name not in given and name in saved and not _same_value(json.dumps(value), saved[name]):
+                raise ValueError(
+                    f"{train_config} was trained with --policy.{name}={json.dumps(saved[name])}, this run's "
+                    f"--policy.preset={preset} means {json.dumps(value)}: delete {self.output_dir} or choose "
+                    "another output directory"
                 )
 
     def command(self) -> list[str]:

@@ -1,6 +1,6 @@
 """Configuration of the Σ-agent policy, registered with LeRobot as ``--policy.type=sigma``.
 
-Presets (``--policy.preset=paper|small``). Every architecture / schedule field left unset (``None``) is filled
+Presets (``--policy.preset=paper|small|suite``). Every architecture / schedule field left unset (``None``) is filled
 from the preset in ``__post_init__``; a field given explicitly (CLI or ``config.json``) always wins.
 
 | field | paper (docs/method.md §5, §10) | small (2 CPU cores, minutes) |
@@ -19,6 +19,12 @@ from the preset in ``__post_init__``; a field given explicitly (CLI or ``config.
 | optimizer_lr, warm-up, decay steps | 9.6e-4, 2000, 25000 | 1e-2, 20, 2000 |
 | optimizer_exempt_small | False | True (biases, norms, query tokens skip LAMB's trust ratio) |
 | head_activation | relu (RVT) | leaky_relu (see "The small recipe") |
+| per_task_bounds, yaw_scan_px | False, 0 | False, 0 |
+
+``suite`` is ``small`` for several tasks at once: ``per_task_bounds=True`` (each task rendered in its own box),
+``yaw_scan_px=24`` (the rotation-equivariant yaw scan), lr 3e-3 and a 6000-step decay. It is the suite benchmark's
+recipe (``benchmarks/bench_suite.py``; RESULTS.md "The suite on 2 CPU cores"): on four tasks ``small``'s lr 1e-2
+underfit with its 2000-step decay and diverged with a longer one, and the scan lifted NutAssembly from 2/80 to 15/80.
 
 LeRobot's cosine schedule shrinks warm-up and decay to the run's ``--steps`` when the run is shorter than the decay.
 
@@ -137,6 +143,8 @@ PRESETS: dict[str, dict[str, Any]] = {
         "optimizer_exempt_small": False,
         "scheduler_warmup_steps": 2000,
         "scheduler_decay_steps": 25000,
+        "per_task_bounds": False,
+        "yaw_scan_px": 0,
     },
     "small": {
         "img_size": 64,
@@ -165,7 +173,17 @@ PRESETS: dict[str, dict[str, Any]] = {
         "optimizer_exempt_small": True,
         "scheduler_warmup_steps": 20,
         "scheduler_decay_steps": 2000,
+        "per_task_bounds": False,
+        "yaw_scan_px": 0,
     },
+}
+# The multi-task recipe of the suite benchmark (benchmarks/bench_suite.py, RESULTS.md "The suite on 2 CPU cores"):
+# the small network with each task in its own box, the yaw scan, and a gentler learning rate decayed over 6000 steps.
+PRESETS["suite"] = PRESETS["small"] | {
+    "per_task_bounds": True,
+    "yaw_scan_px": 24,
+    "optimizer_lr": 3e-3,
+    "scheduler_decay_steps": 6000,
 }
 
 ACTION_DIM = KEYFRAME_ACTION_DIM
@@ -182,6 +200,7 @@ class SigmaConfig(PreTrainedConfig):
     ``aug_translation_range`` metres; ``aug_yaw_range_deg`` degrees; ``gt_heatmap_sigma`` pixels.
     """
 
+    # paper | small | suite (PRESETS; the module docstring says what each fills).
     preset: str = "paper"
 
     # ---- architecture (None = from preset)
@@ -226,7 +245,7 @@ class SigmaConfig(PreTrainedConfig):
     # keyframe position that is turned to every yaw bin and scored by one CNN (0 = off); its channels; the training
     # jitter (pixels, uniform per axis) of the crop's centre about the target's projection, standing in for the
     # translation error the crop sits with at inference.
-    yaw_scan_px: int = 0
+    yaw_scan_px: int | None = None  # None = from preset (paper and small 0, suite 24)
     yaw_scan_channels: int = 16
     yaw_scan_jitter_px: float = 1.0
     logit_scale_init: float = math.log(1 / 0.07)
@@ -253,7 +272,7 @@ class SigmaConfig(PreTrainedConfig):
     # Each instruction uses its own task's box (``instruction_bounds``) instead of one box for every task: a
     # multi-task policy then gives Stack's cubes the pixels of a 36 cm box while PickPlace keeps its 1 m box.
     # ``scene_bounds`` (the union) stays the box of an instruction the policy was not trained on.
-    per_task_bounds: bool = False
+    per_task_bounds: bool | None = None  # None = from preset (paper and small False, suite True)
     # instruction -> (xmin, ymin, zmin, xmax, ymax, zmax); filled from the training dataset's meta/sigma.json
     # (each episode's instruction and its task's recorded box) when ``per_task_bounds`` and left empty.
     instruction_bounds: dict[str, list[float]] = field(default_factory=dict)

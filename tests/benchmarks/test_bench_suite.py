@@ -37,7 +37,7 @@ def test_markdown_has_a_column_per_seed_and_pooled_rows():
     assert "| lift:lift_cube | 20/20 (10–90%) | 19/20 (10–90%) |" in text
     assert "| 0 | 0.40 | 0.40 | 90% | 10.0 | 100% | **35/40" in text
     assert "dropped 5" in text and "dropped 9" in text and "| 60 | 15 |" in text
-    assert "--policy.per_task_bounds=true" in text
+    assert "`--policy.preset=suite` `--policy.use_cpu_bf16_autocast=true`" in text
     assert "decay over 6000 steps" in text  # the schedule stretched over the whole run by default
     short = markdown(SuiteBenchConfig(tasks=["lift"], schedule_steps=2000), results[:1])
     assert "decay over 2000 steps" in short
@@ -46,11 +46,16 @@ def test_markdown_has_a_column_per_seed_and_pooled_rows():
 def test_learning_rate_option_reaches_lerobot_train_and_the_table():
     lift = [_result(0, {"lift:lift_cube": 20})]
     suite = SuiteBenchConfig(tasks=["lift"])
-    assert suite.schedule_args == ["--policy.scheduler_decay_steps=6000", "--policy.optimizer_lr=0.003"]
+    assert suite.schedule_args == ["--policy.scheduler_decay_steps=6000"]  # the suite preset's lr
     assert "peak learning rate 0.003" in markdown(suite, lift)
-    preset = SuiteBenchConfig(tasks=["lift"], lr=None)  # the small preset's own 1e-2
-    assert preset.schedule_args == ["--policy.scheduler_decay_steps=6000"]
-    assert "peak learning rate 0.01" in markdown(preset, lift)
+    small = SuiteBenchConfig(tasks=["lift"], preset="small")  # the small preset's own 1e-2
+    assert small.schedule_args == ["--policy.scheduler_decay_steps=6000"]
+    assert "peak learning rate 0.01" in markdown(small, lift) and "`--policy.preset=small`" in markdown(
+        small, lift
+    )
+    assert small.run_dir(0).name == "seed0_decay6000_lr0.01"
+    tuned = SuiteBenchConfig(tasks=["lift"], lr=1e-3)
+    assert tuned.schedule_args == ["--policy.scheduler_decay_steps=6000", "--policy.optimizer_lr=0.001"]
 
 
 def test_device_option_reaches_lerobot_train_and_the_table(tmp_path):
@@ -58,7 +63,7 @@ def test_device_option_reaches_lerobot_train_and_the_table(tmp_path):
     command = gpu.train_run(1, tmp_path / "keyframe").command()
     assert "--policy.device=cuda" in command and "--seed=1" in command
     assert f"--output_dir={tmp_path / 'runs' / 'seed1_decay6000_lr0.003' / 'train'}" in command
-    assert "--policy.optimizer_lr=0.003" in command and "--policy.per_task_bounds=true" in command
+    assert "--policy.preset=suite" in command and "--policy.use_cpu_bf16_autocast=true" in command
     assert ", CUDA; closed loop" in markdown(gpu, [_result(1, {"lift:lift_cube": 20})])
     cpu = SuiteBenchConfig(tasks=["lift"], output_dir=tmp_path)
     assert "--policy.device=cpu" in cpu.train_run(0, tmp_path / "keyframe").command()

@@ -93,3 +93,43 @@ def test_a_finished_run_is_reused_only_with_the_options_it_was_trained_with(tmp_
     with pytest.raises(ValueError, match="--steps=6000"):
         TrainRun(**{**run.__dict__, "steps": 3000}).reuse_or_clear(record, "suite")
     assert run.checkpoint.is_dir()  # nothing cleared
+
+
+def test_a_preset_is_compared_by_the_values_it_fills(tmp_path):
+    """``--policy.preset=suite`` reuses a run trained as ``small`` with the suite's options given one by one (the
+    published suite runs), and refuses a ``small`` run that left one of them at its default."""
+    from sigma_policy.configuration_sigma import PRESETS
+
+    run = TrainRun(
+        dataset_root=tmp_path / "data",
+        output_dir=tmp_path / "train",
+        steps=6000,
+        batch_size=8,
+        preset="suite",
+        extra_args=["--policy.scheduler_decay_steps=6000"],
+    )
+    run.checkpoint.mkdir(parents=True)
+    (run.checkpoint / "config.json").write_text("{}")
+    record = tmp_path / "train_seconds.json"
+    record.write_text(json.dumps({"seconds": 60.0}))
+    suite_options = {
+        "per_task_bounds": True,
+        "yaw_scan_px": 24,
+        "optimizer_lr": 0.003,
+        "scheduler_decay_steps": 6000,
+    }
+    by_hand = PRESETS["small"] | suite_options
+    saved = {
+        "steps": 6000,
+        "seed": 0,
+        "policy": {"type": "sigma", "device": "cpu", "preset": "small", **by_hand},
+    }
+    (run.checkpoint / "train_config.json").write_text(json.dumps(saved))
+    assert run.reuse_or_clear(record, "suite") == {"seconds": 60.0}
+    saved["policy"]["yaw_scan_px"] = 0
+    (run.checkpoint / "train_config.json").write_text(json.dumps(saved))
+    with pytest.raises(
+        ValueError, match=r"--policy\.yaw_scan_px=0, this run's --policy\.preset=suite means 24"
+    ):
+        run.reuse_or_clear(record, "suite")
+    assert run.checkpoint.is_dir()  # nothing cleared

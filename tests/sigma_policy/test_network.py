@@ -138,6 +138,22 @@ def test_config_presets_and_overrides():
     assert tuple(getattr(small, f) for f in recipe) == (1e-2, True, 0.0, 45.0)
     assert tuple(getattr(paper, f) for f in recipe) == (9.6e-4, False, 0.125, 45.0)
     assert SigmaConfig(preset="small", aug_yaw_range_deg=15, device="cpu").aug_yaw_range_deg == 15
+    # The suite preset: small's network with per-task boxes, the yaw scan and the gentler schedule.
+    suite = SigmaConfig(preset="suite", device="cpu")
+    multi = (
+        "per_task_bounds",
+        "yaw_scan_px",
+        "optimizer_lr",
+        "scheduler_decay_steps",
+        "img_size",
+        "attn_dim",
+    )
+    assert tuple(getattr(suite, f) for f in multi) == (True, 24, 3e-3, 6000, 64, 128)
+    assert (
+        tuple(getattr(small, f) for f in multi[:2])
+        == (False, 0)
+        == tuple(getattr(paper, f) for f in multi[:2])
+    )
     assert (small.network_config().head_activation, paper.network_config().head_activation) == (
         "leaky_relu",
         "relu",
