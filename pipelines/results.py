@@ -3,15 +3,16 @@
 Every benchmark writes a Markdown fragment (with the exact command and the machine) and a JSON file of raw
 numbers to ``benchmarks/results/<name>.*`` (:func:`pipelines.reporting.write_report`). This command runs the
 chosen benchmarks one after the other as subprocesses from the repository root, then stitches the fragments, in
-a fixed order (experts, ablation, compare, learning, demos, collect, loader, renderer, policy), under a short
-header into ``RESULTS.md``.
+a fixed order (experts, tolerance, ablation, compare, learning, demos, suite, collect, loader, renderer, policy), under a
+short header into ``RESULTS.md``.
 A fragment that does not exist yet is shown as "not measured yet" with the command that produces it, never
 silently dropped; a benchmark that fails is reported with its exit status and command, and the others still run.
 Numbers come only from those runs.
 
     sigma-results                                  # collect, loader, renderer, policy (~30 min on 2 CPU cores)
-    sigma-results --include_slow true              # also experts (~45 min), learning (~45 min), demos (~50 min),
-                                                   # suite (~70 min per seed), ablation (~1 h), compare (~2.5 h)
+    sigma-results --include_slow true              # also experts (~45 min), tolerance (~30 min), learning (~45 min),
+                                                   # demos (~50 min), suite (~70 min per seed), ablation (~1 h),
+                                                   # compare (~2.5 h)
     sigma-results --stitch_only true               # run nothing, only rebuild RESULTS.md
     sigma-results --only loader,policy             # comma-separated names (also --skip)
     sigma-results --only loader --extra_args '{"loader": "--samples 5"}'   # flags appended to a command
@@ -52,6 +53,14 @@ BENCHMARKS: tuple[Benchmark, ...] = (
         "experts",
         "Scripted experts and the keyframe-replay upper bound",
         "python -m benchmarks.bench_experts --seeds 50 --workers 2",
+        slow=True,
+        takes_results_dir=False,
+    ),
+    # ~30 min: 20 expert episodes per variation of the four suite tasks, each replayed 7 times (exact, moved, turned).
+    Benchmark(
+        "tolerance",
+        "Tolerance: keyframe replay with displaced or turned keyframes",
+        "python -m benchmarks.bench_tolerance",
         slow=True,
         takes_results_dir=False,
     ),
@@ -230,8 +239,8 @@ def stitch(results_dir: Path, failures: dict[str, tuple[int, str]] | None = None
         "run. Absolute times depend on the machine and its load: compare ratios, or runs on the same machine.",
         "",
         "Regenerate with one command: `sigma-results` (the fast benchmarks, ~30 min on 2 CPU cores, then this file);",
-        "`sigma-results --include_slow true` also re-runs the slow ones (experts, learning, demonstrations, suite, "
-        "ablation, comparison); `sigma-results "
+        "`sigma-results --include_slow true` also re-runs the slow ones (experts, tolerance, learning, demonstrations, "
+        "suite, ablation, comparison); `sigma-results "
         "--stitch_only true` only rebuilds this file from `benchmarks/results/`.",
         "",
         f"Stitched on: {machine_description()}; {time.strftime('%Y-%m-%d')}.",
