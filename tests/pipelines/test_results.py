@@ -39,6 +39,7 @@ def test_stitch_orders_sections_names_missing_and_failed_ones(tmp_path):
     assert "Stitched on: " in header and " cores" in header
     assert NAMES == (
         "experts",
+        "tolerance",
         "ablation",
         "compare",
         "learning",
