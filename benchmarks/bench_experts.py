@@ -32,6 +32,7 @@ from sigma_data.control import EnvDriver, KeyframeExecutor
 from sigma_data.experts.base import ExpertFailure
 from sigma_data.mujoco_gl import quiet_robosuite
 from sigma_data.suite import TASKS, get_task, get_variation, make_env, reset_env
+from sigma_data.tasks.spec import TaskSpec, Variation
 
 
 @dataclass
@@ -85,6 +86,19 @@ def short_reason(reason: str) -> str:
     return re.sub(r"\d+(\.\d+)?", "N", head)
 
 
+def run_expert(env, task: TaskSpec, variation: Variation, seed: int) -> tuple[EnvDriver, bool, str]:
+    """Reset ``env`` to ``seed`` and run the task's scripted expert (no cameras): the driver (its keyframes and
+    steps), whether the task succeeded, and why not."""
+    reset_env(env, task, variation, seed)
+    driver = EnvDriver(env)
+    try:
+        task.expert(driver, variation, np.random.default_rng(seed))
+        ok = task.success(env, variation)
+        return driver, ok, "" if ok else "success check false at the end"
+    except ExpertFailure as exc:
+        return driver, False, f"ExpertFailure: {exc}"
+
+
 def run_variation(task_name: str, variation_name: str, seeds: list[int], replay: bool) -> VariationReport:
     """Expert (and keyframe replay of the successful demos) of one variation over ``seeds``, without cameras."""
     quiet_robosuite()  # also in worker processes
@@ -95,14 +109,7 @@ def run_variation(task_name: str, variation_name: str, seeds: list[int], replay:
     start = time.perf_counter()
     try:
         for seed in seeds:
-            reset_env(env, task, variation, seed)
-            driver = EnvDriver(env)
-            try:
-                task.expert(driver, variation, np.random.default_rng(seed))
-                ok = task.success(env, variation)
-                reason = "" if ok else "success check false at the end"
-            except ExpertFailure as exc:
-                ok, reason = False, f"ExpertFailure: {exc}"
+            driver, ok, reason = run_expert(env, task, variation, seed)
             if driver.num_steps > task.max_steps:
                 ok, reason = False, f"over budget: {driver.num_steps} > {task.max_steps} steps"
             if not ok:

@@ -29,10 +29,10 @@ from scipy.spatial.transform import Rotation
 from tqdm import tqdm
 
 import sigma_data  # noqa: F401  (headless GL before robosuite)
+from benchmarks.bench_experts import run_expert
 from benchmarks.report import write_report
 from pipelines.evaluate import wilson_interval
 from sigma_data.control import EnvDriver, KeyframeExecutor
-from sigma_data.experts.base import ExpertFailure
 from sigma_data.mujoco_gl import quiet_robosuite
 from sigma_data.suite import get_task, get_variation, make_env, reset_env
 
@@ -94,13 +94,7 @@ def run_variation(
     start = time.perf_counter()
     try:
         for seed in seeds:
-            reset_env(env, task, variation, seed)
-            driver = EnvDriver(env)
-            try:
-                task.expert(driver, variation, np.random.default_rng(seed))
-                ok = task.success(env, variation)
-            except ExpertFailure:
-                ok = False
+            driver, ok, _ = run_expert(env, task, variation, seed)
             if not ok:
                 outcome["expert_failed"].append(seed)
                 continue
