@@ -29,6 +29,7 @@ from scipy.spatial.transform import Rotation
 from tqdm import tqdm
 
 import sigma_data  # noqa: F401  (headless GL before robosuite)
+from benchmarks.bench_demos import cell as demos_cell
 from benchmarks.bench_experts import run_expert
 from benchmarks.report import write_report
 from pipelines.evaluate import wilson_interval
@@ -89,7 +90,7 @@ def run_variation(
     task = get_task(task_name)
     variation = get_variation(task, variation_name)
     env = make_env(task)
-    outcome: dict = {"task": task_name, "variation": variation_name, "expert_failed": [], "replays": {}}
+    outcome: dict = {"task": task_name, "variation": variation_name, "expert_failed": []}
     results = {condition_name(*c): [] for c in conds}
     start = time.perf_counter()
     try:
@@ -112,10 +113,8 @@ def run_variation(
 
 
 def cell(successes: int, n: int) -> str:
-    if not n:
-        return "-"
-    lo, hi = wilson_interval(successes, n)
-    return f"{successes}/{n} ({100 * lo:.0f}–{100 * hi:.0f}%)"
+    """``k/n (lo–hi%)`` with the Wilson interval (``bench_demos.cell``'s format); a dash without replays."""
+    return demos_cell(successes, n, wilson_interval(successes, n)) if n else "-"
 
 
 def markdown(outcomes: list[dict], conds: list[tuple[float, float]]) -> str:
