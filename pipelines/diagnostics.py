@@ -9,7 +9,7 @@ and is compared with the recorded one:
   difference of the gimbal-fixed angles that the rotation head classifies (``sigma_policy.rotation``);
 * **gripper** and **collision** accuracy (the two binary heads).
 
-Errors are summarised (median, mean, 90th percentile, share within 1 cm / 2 cm / 10°) over the whole set and per
+Errors are summarised (median, mean, 90th percentile, share within 1 cm / 2 cm / 10° / 20°) over the whole set and per
 keyframe step (frame k of an episode predicts its keyframe k + 1: for Lift step 0 is the pre-grasp pose, 1 the
 grasp, 2 the close, 3 the lift), which tells *where* a policy fails; on a dataset sigma collected (its
 ``meta/sigma.json`` names each episode's task) also per task, with each task's steps, which tells *which* task of a
@@ -58,6 +58,7 @@ METRICS = (
     "rot_deg_median",
     "rot_deg_mean",
     "within_10deg",
+    "within_20deg",
     "roll_deg_mean",
     "pitch_deg_mean",
     "yaw_deg_mean",
@@ -138,6 +139,7 @@ def summarise_errors(err: dict[str, np.ndarray]) -> dict[str, float]:
         "rot_deg_median": float(np.median(r)),
         "rot_deg_mean": float(np.mean(r)),
         "within_10deg": float(np.mean(r <= 10.0)),
+        "within_20deg": float(np.mean(r <= 20.0)),
         "roll_deg_mean": float(np.mean(err["roll_deg"])),
         "pitch_deg_mean": float(np.mean(err["pitch_deg"])),
         "yaw_deg_mean": float(np.mean(err["yaw_deg"])),

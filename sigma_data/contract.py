@@ -62,6 +62,10 @@ KEYFRAME_ACTION_NAMES: tuple[str, ...] = (
 KEYFRAME_ACTION_DIM = len(KEYFRAME_ACTION_NAMES)
 ACTION_NAMES: Mapping[str, tuple[str, ...]] = {DENSE: DENSE_ACTION_NAMES, KEYFRAME: KEYFRAME_ACTION_NAMES}
 
+# LeRobot's time of a frame from its episode's start, seconds (frame_index / fps; 0 on an episode's first frame).
+# Unlike frame_index, LeRobot's processors pass it on to the policy.
+TIMESTAMP = "timestamp"
+
 # sigma's own per-frame columns (stock policies ignore them)
 IS_KEYFRAME = "sigma.is_keyframe"  # dense: the frame is a keyframe
 NEXT_KEYFRAME_INDEX = "sigma.next_keyframe_index"  # dense: episode-relative index of the next keyframe

@@ -227,6 +227,10 @@ class SigmaConfig(PreTrainedConfig):
     num_queries: int = 1
     query_attention: str = "self"
     bc_lambda: float = 0.5
+    # Weight of an episode's first frame in the BC loss, relative to its other frames (1 = all equal). The first
+    # frame's target (start pose -> above the object) is where the scene and the instruction decide the position;
+    # later keyframes follow the hand. The batch's weights are scaled to mean 1, so the loss keeps its size.
+    first_keyframe_weight: float = 1.0
     mask_same_instruction: bool = True
     mask_same_task: bool = False
     use_proprio: bool | None = None  # None = from preset (paper False, small True)
@@ -336,6 +340,8 @@ class SigmaConfig(PreTrainedConfig):
             raise ValueError(f"policy.depth_unit must be 'm' or 'mm', got {self.depth_unit!r}")
         if not 0.0 < self.bc_lambda <= 1.0:
             raise ValueError(f"policy.bc_lambda must be in (0, 1], got {self.bc_lambda}")
+        if not self.first_keyframe_weight > 0.0:
+            raise ValueError(f"policy.first_keyframe_weight must be > 0, got {self.first_keyframe_weight}")
         for instruction, box in self.instruction_bounds.items():
             if len(box) != 6 or any(hi <= lo for lo, hi in zip(box[:3], box[3:], strict=True)):
                 raise ValueError(f"policy.instruction_bounds[{instruction!r}] must be a box of 6, got {box}")

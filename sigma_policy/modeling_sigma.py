@@ -34,6 +34,7 @@ from lerobot.policies.pretrained import PreTrainedPolicy
 from lerobot.utils.constants import ACTION, OBS_STATE
 from torch import Tensor
 
+from sigma_data.contract import TIMESTAMP
 from sigma_policy import lerobot_patches
 from sigma_policy.augmentation import se3_augment
 from sigma_policy.configuration_sigma import SigmaConfig
@@ -278,7 +279,7 @@ class SigmaPolicy(PreTrainedPolicy):
             "collision_loss": coll_loss.mean().item(),
             "bc_loss": bc.mean().item(),
         }
-        per_sample = bc
+        per_sample = bc = bc * self._frame_weights(batch, bc)
         if cfg.use_contrastive:
             group = self._negative_groups(tasks, bc.device)
             cl = contrastive_losses(
@@ -373,6 +374,22 @@ class SigmaPolicy(PreTrainedPolicy):
             f"sigma: '{key}' has shape {tuple(x.shape)}; expected (B, {'T, ' if t else ''}...) with a "
             f"{item_ndim}-D item" + ("; the goal frame needs observation_delta_indices=[0, 1]" if t else "")
         )
+
+    def _frame_weights(self, batch: dict[str, Any], bc: Tensor) -> Tensor:
+        """(B,) BC weights: ``first_keyframe_weight`` on an episode's first frame (timestamp 0), 1 elsewhere, scaled
+        to mean 1."""
+        w = self.config.first_keyframe_weight
+        if w == 1.0:
+            return torch.ones_like(bc)
+        if TIMESTAMP not in batch:
+            raise KeyError(f"sigma: first_keyframe_weight={w} needs the batch's '{TIMESTAMP}'")
+        first = torch.as_tensor(batch[TIMESTAMP], device=bc.device).reshape(-1) < 1e-6
+        if first.shape != bc.shape:
+            raise ValueError(
+                f"sigma: '{TIMESTAMP}' has {first.numel()} entries for a batch of {bc.shape[0]}"
+            )
+        weights = torch.where(first, w, 1.0).to(bc.dtype)
+        return weights / weights.mean()
 
     @staticmethod
     def _tasks(batch: dict[str, Any], b: int) -> list[str]:

@@ -10,7 +10,14 @@ import pytest
 import torch
 from lerobot.policies.factory import make_pre_post_processors
 
-from pipelines.diagnostics import DiagnoseConfig, action_errors, goal_rows, open_dataset, run_diagnose
+from pipelines.diagnostics import (
+    DiagnoseConfig,
+    action_errors,
+    goal_rows,
+    open_dataset,
+    run_diagnose,
+    summarise_errors,
+)
 from sigma_policy.configuration_sigma import SigmaConfig
 from sigma_policy.modeling_sigma import SigmaPolicy
 from sigma_policy.rotation import euler_xyz_to_quat
@@ -38,6 +45,20 @@ def test_action_errors_measure_each_head_in_its_unit():
     np.testing.assert_allclose(err["roll_deg"], [0.0, 0.0], atol=1e-4)
     assert err["gripper_ok"].tolist() == [False, True]
     assert err["collision_ok"].tolist() == [True, False]
+
+
+def test_summaries_count_the_tails_beyond_each_threshold():
+    n = 4
+    err = {
+        "trans_cm": np.array([0.5, 1.5, 2.5, 9.0]),
+        "rot_deg": np.array([5.0, 15.0, 25.0, 170.0]),
+        **{k: np.zeros(n) for k in ("roll_deg", "pitch_deg", "yaw_deg")},
+        "gripper_ok": np.ones(n, bool),
+        "collision_ok": np.ones(n, bool),
+    }
+    s = summarise_errors(err)
+    assert (s["within_1cm"], s["within_2cm"], s["within_10deg"], s["within_20deg"]) == (0.25, 0.5, 0.25, 0.5)
+    assert summarise_errors({k: v[:0] for k, v in err.items()})["frames"] == 0
 
 
 def _save_checkpoint(root, out, train_episodes, seed):

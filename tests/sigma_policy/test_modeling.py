@@ -98,6 +98,27 @@ def test_rvt_baseline_without_contrastive_loss(tiny_root):
     assert policy.network.contrastive is None
 
 
+def test_first_keyframe_weight_scales_the_first_frames_bc_loss_and_keeps_the_batch_mean(tiny_root):
+    """Frames 0 and 1 of two episodes: with weight 3 the two first frames get 3 / 2 and the others 1 / 2 of their
+    unweighted BC loss (weights scaled to mean 1), from the same draws."""
+    _, plain, pre, _, ds = build(tiny_root, use_contrastive=False)
+    _, weighted, *_ = build(tiny_root, use_contrastive=False, first_keyframe_weight=3.0)
+    weighted.load_state_dict(plain.state_dict())
+    batch = pre(training_batch(ds, [0, 1, 3, 4]))
+    first = batch["timestamp"] == 0  # frame_index does not pass LeRobot's processors; the timestamp does
+    assert first.tolist() == [True, False, True, False]
+    torch.manual_seed(0)
+    base, _ = plain.forward(batch, reduction="none")
+    torch.manual_seed(0)
+    scaled, _ = weighted.forward(batch, reduction="none")
+    torch.testing.assert_close(scaled, base * torch.where(first, 1.5, 0.5))
+    del batch["timestamp"]
+    with pytest.raises(KeyError, match="timestamp"):
+        weighted.forward(batch)
+    with pytest.raises(ValueError, match="first_keyframe_weight"):
+        SigmaConfig(first_keyframe_weight=0.0)
+
+
 def test_unbatched_single_observation_inference(tiny_root):
     _, policy, pre, post, _ = build(tiny_root)
     policy.eval()
