@@ -16,6 +16,11 @@ import time
 from dataclasses import dataclass, field
 from pathlib import Path
 
+# sigma options that training fills in from the dataset when left unset: not compared when a run is reused.
+RESOLVED_AT_TRAINING = frozenset(
+    {"preset", "scene_bounds", "instruction_bounds", "instruction_tasks", "cameras"}
+)
+
 
 @dataclass
 class TrainRun:
@@ -92,20 +97,35 @@ class TrainRun:
                 )
 
     def _check_same_preset(self, preset: str, arguments: list[str], saved: dict, train_config: Path) -> None:
-        """A preset is the values it fills: every field of ``preset`` that no argument sets must equal the saved
-        one (so a ``suite`` run reuses a ``small`` run given the suite's options one by one, and refuses a ``small``
-        run that left them at their defaults)."""
-        from sigma_policy.configuration_sigma import PRESETS
+        """Every sigma option that no argument sets still means a value: the preset's for a field the preset
+        fills, the dataclass default for the rest. It must equal the saved one, so a ``suite`` run reuses a
+        ``small`` run given the suite's options one by one (the published suite runs) and refuses a ``small`` run
+        that left one of them at its default, or a run trained with an option (``first_keyframe_weight=3``) that
+        this run leaves at its default. Fields resolved from the dataset at training (the boxes, the cameras) and
+        fields an older checkpoint did not save are not compared."""
+        import dataclasses
+
+        from lerobot.configs.policies import PreTrainedConfig
+
+        from sigma_policy.configuration_sigma import PRESETS, SigmaConfig
 
         given = {
             a.removeprefix("--policy.").partition("=")[0] for a in arguments if a.startswith("--policy.")
         }
-        for name, value in PRESETS.get(preset, {}).items():
-            if name not in given and name in saved and not _same_value(json.dumps(value), saved[name]):
+        skip = given | RESOLVED_AT_TRAINING | {f.name for f in dataclasses.fields(PreTrainedConfig)}
+        fills = PRESETS.get(preset, {})
+        for f in dataclasses.fields(SigmaConfig):
+            if f.name in skip or f.name not in saved:
+                continue
+            if f.name in fills:
+                value, means = fills[f.name], f"this run's --policy.preset={preset} means"
+            else:
+                value = f.default if f.default is not dataclasses.MISSING else f.default_factory()
+                means = "this run leaves it at its default"
+            if not _same_value(json.dumps(value), saved[f.name]):
                 raise ValueError(
-                    f"{train_config} was trained with --policy.{name}={json.dumps(saved[name])}, this run's "
-                    f"--policy.preset={preset} means {json.dumps(value)}: delete {self.output_dir} or choose "
-                    "another output directory"
+                    f"{train_config} was trained with --policy.{f.name}={json.dumps(saved[f.name])}, {means} "
+                    f"{json.dumps(value)}: delete {self.output_dir} or choose another output directory"
                 )
 
     def command(self) -> list[str]:

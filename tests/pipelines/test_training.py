@@ -97,7 +97,8 @@ def test_a_finished_run_is_reused_only_with_the_options_it_was_trained_with(tmp_
 
 def test_a_preset_is_compared_by_the_values_it_fills(tmp_path):
     """``--policy.preset=suite`` reuses a run trained as ``small`` with the suite's options given one by one (the
-    published suite runs), and refuses a ``small`` run that left one of them at its default."""
+    published suite runs), and refuses a ``small`` run that left one of them at its default, and a run trained with
+    an option this run leaves at its default."""
     from sigma_policy.configuration_sigma import PRESETS
 
     run = TrainRun(
@@ -130,6 +131,13 @@ def test_a_preset_is_compared_by_the_values_it_fills(tmp_path):
     (run.checkpoint / "train_config.json").write_text(json.dumps(saved))
     with pytest.raises(
         ValueError, match=r"--policy\.yaw_scan_px=0, this run's --policy\.preset=suite means 24"
+    ):
+        run.reuse_or_clear(record, "suite")
+    # An option neither given nor filled by the preset means its default.
+    saved["policy"] |= {"yaw_scan_px": 24, "first_keyframe_weight": 3.0}
+    (run.checkpoint / "train_config.json").write_text(json.dumps(saved))
+    with pytest.raises(
+        ValueError, match=r"--policy\.first_keyframe_weight=3\.0, this run leaves it at its default 1\.0"
     ):
         run.reuse_or_clear(record, "suite")
     assert run.checkpoint.is_dir()  # nothing cleared
