@@ -6,6 +6,7 @@ pipelines measure is what ``lerobot-train --policy.type=sigma`` does.
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import os
 import re
@@ -15,6 +16,7 @@ import sys
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Any
 
 # sigma options that training fills in from the dataset when left unset: not compared when a run is reused.
 RESOLVED_AT_TRAINING = frozenset(
@@ -78,14 +80,17 @@ class TrainRun:
         if not train_config.exists():
             return
         saved = json.loads(train_config.read_text())
+        policy = saved.get("policy", {})
+        if self.policy_type == "sigma":
+            policy = _introduced_values() | policy
         arguments = self.arguments()
         for arg in arguments:
             key, _, value = arg.removeprefix("--").partition("=")
             if key == "policy.preset" and self.policy_type == "sigma":
-                self._check_same_preset(value, arguments, saved.get("policy", {}), train_config)
+                self._check_same_preset(value, arguments, policy, train_config)
                 continue
             if key.startswith("policy."):
-                where, name = saved.get("policy", {}), key.removeprefix("policy.")
+                where, name = policy, key.removeprefix("policy.")
             elif key in ("steps", "seed"):
                 where, name = saved, key
             else:
@@ -101,10 +106,8 @@ class TrainRun:
         fills, the dataclass default for the rest. It must equal the saved one, so a ``suite`` run reuses a
         ``small`` run given the suite's options one by one (the published suite runs) and refuses a ``small`` run
         that left one of them at its default, or a run trained with an option (``first_keyframe_weight=3``) that
-        this run leaves at its default. Fields resolved from the dataset at training (the boxes, the cameras) and
-        fields an older checkpoint did not save are not compared."""
-        import dataclasses
-
+        this run leaves at its default. Fields resolved from the dataset at training (the boxes, the cameras) are
+        not compared."""
         from lerobot.configs.policies import PreTrainedConfig
 
         from sigma_policy.configuration_sigma import PRESETS, SigmaConfig
@@ -115,14 +118,13 @@ class TrainRun:
         skip = given | RESOLVED_AT_TRAINING | {f.name for f in dataclasses.fields(PreTrainedConfig)}
         fills = PRESETS.get(preset, {})
         for f in dataclasses.fields(SigmaConfig):
-            if f.name in skip or f.name not in saved:
+            if f.name in skip:
                 continue
             if f.name in fills:
                 value, means = fills[f.name], f"this run's --policy.preset={preset} means"
             else:
-                value = f.default if f.default is not dataclasses.MISSING else f.default_factory()
-                means = "this run leaves it at its default"
-            if not _same_value(json.dumps(value), saved[f.name]):
+                value, means = _default(f), "this run leaves it at its default"
+            if f.name in saved and not _same_value(json.dumps(value), saved[f.name]):
                 raise ValueError(
                     f"{train_config} was trained with --policy.{f.name}={json.dumps(saved[f.name])}, {means} "
                     f"{json.dumps(value)}: delete {self.output_dir} or choose another output directory"
@@ -162,6 +164,27 @@ class TrainRun:
             f"--seed={self.seed}",
             *self.extra_args,
         ]
+
+
+def _default(f: Any) -> Any:
+    """The default of dataclass field ``f``."""
+    return f.default if f.default is not dataclasses.MISSING else f.default_factory()
+
+
+def _introduced_values() -> dict[str, Any]:
+    """Every sigma option at the value it was introduced with: what a run trained before the option existed did.
+    That is its default, or the ``paper`` preset's value for a field the presets fill (new options arrive off)."""
+    from lerobot.configs.policies import PreTrainedConfig
+
+    from sigma_policy.configuration_sigma import PRESETS, SigmaConfig
+
+    skip = RESOLVED_AT_TRAINING | {f.name for f in dataclasses.fields(PreTrainedConfig)}
+    values = {
+        f.name: PRESETS["paper"].get(f.name, _default(f))
+        for f in dataclasses.fields(SigmaConfig)
+        if f.name not in skip
+    }
+    return json.loads(json.dumps(values))  # as a train_config.json stores them (tuples as lists)
 
 
 def _same_value(arg: str, stored: object) -> bool:

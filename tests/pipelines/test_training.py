@@ -53,6 +53,8 @@ def test_an_interrupted_run_resumes_from_its_last_checkpoint(tmp_path):
 def test_a_finished_run_is_reused_only_with_the_options_it_was_trained_with(tmp_path):
     """``reuse_or_clear`` compares the run's ``--policy.*``, ``--steps`` and ``--seed`` arguments with the saved
     ``train_config.json``: the same options reuse the record, another option is a clear error and clears nothing."""
+    from sigma_policy.configuration_sigma import PRESETS
+
     run = TrainRun(
         dataset_root=tmp_path / "data",
         output_dir=tmp_path / "train",
@@ -72,6 +74,7 @@ def test_a_finished_run_is_reused_only_with_the_options_it_was_trained_with(tmp_
         "seed": 0,
         "dataset": {"root": "/elsewhere"},  # not compared: a moved dataset is the same data
         "policy": {
+            **PRESETS["small"],
             "type": "sigma",
             "device": "cpu",
             "preset": "small",
@@ -92,6 +95,10 @@ def test_a_finished_run_is_reused_only_with_the_options_it_was_trained_with(tmp_
             other.reuse_or_clear(record, "suite")
     with pytest.raises(ValueError, match="--steps=6000"):
         TrainRun(**{**run.__dict__, "steps": 3000}).reuse_or_clear(record, "suite")
+    # An option the saved run predates is compared at the value it was introduced with.
+    newer = TrainRun(**{**run.__dict__, "extra_args": [*run.extra_args, "--policy.first_keyframe_weight=3"]})
+    with pytest.raises(ValueError, match=r"--policy\.first_keyframe_weight=1\.0, this run asks for .*=3"):
+        newer.reuse_or_clear(record, "suite")
     assert run.checkpoint.is_dir()  # nothing cleared
 
 
