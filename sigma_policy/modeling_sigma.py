@@ -385,9 +385,7 @@ class SigmaPolicy(PreTrainedPolicy):
             raise KeyError(f"sigma: first_keyframe_weight={w} needs the batch's '{TIMESTAMP}'")
         first = torch.as_tensor(batch[TIMESTAMP], device=bc.device).reshape(-1) < 1e-6
         if first.shape != bc.shape:
-            raise ValueError(
-                f"sigma: '{TIMESTAMP}' has {first.numel()} entries for a batch of {bc.shape[0]}"
-            )
+            raise ValueError(f"sigma: '{TIMESTAMP}' has {first.numel()} entries for a batch of {bc.shape[0]}")
         weights = torch.where(first, w, 1.0).to(bc.dtype)
         return weights / weights.mean()
 
