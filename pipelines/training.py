@@ -108,17 +108,14 @@ class TrainRun:
         that left one of them at its default, or a run trained with an option (``first_keyframe_weight=3``) that
         this run leaves at its default. Fields resolved from the dataset at training (the boxes, the cameras) are
         not compared."""
-        from lerobot.configs.policies import PreTrainedConfig
-
-        from sigma_policy.configuration_sigma import PRESETS, SigmaConfig
+        from sigma_policy.configuration_sigma import PRESETS
 
         given = {
             a.removeprefix("--policy.").partition("=")[0] for a in arguments if a.startswith("--policy.")
         }
-        skip = given | RESOLVED_AT_TRAINING | {f.name for f in dataclasses.fields(PreTrainedConfig)}
         fills = PRESETS.get(preset, {})
-        for f in dataclasses.fields(SigmaConfig):
-            if f.name in skip:
+        for f in _compared_fields():
+            if f.name in given:
                 continue
             if f.name in fills:
                 value, means = fills[f.name], f"this run's --policy.preset={preset} means"
@@ -171,19 +168,23 @@ def _default(f: Any) -> Any:
     return f.default if f.default is not dataclasses.MISSING else f.default_factory()
 
 
+def _compared_fields() -> list[Any]:
+    """The sigma options a reused run is compared on: SigmaConfig's own fields, less those training resolves from
+    the dataset (:data:`RESOLVED_AT_TRAINING`) and LeRobot's common policy fields (device, hub settings...)."""
+    from lerobot.configs.policies import PreTrainedConfig
+
+    from sigma_policy.configuration_sigma import SigmaConfig
+
+    skip = RESOLVED_AT_TRAINING | {f.name for f in dataclasses.fields(PreTrainedConfig)}
+    return [f for f in dataclasses.fields(SigmaConfig) if f.name not in skip]
+
+
 def _introduced_values() -> dict[str, Any]:
     """Every sigma option at the value it was introduced with: what a run trained before the option existed did.
     That is its default, or the ``paper`` preset's value for a field the presets fill (new options arrive off)."""
-    from lerobot.configs.policies import PreTrainedConfig
+    from sigma_policy.configuration_sigma import PRESETS
 
-    from sigma_policy.configuration_sigma import PRESETS, SigmaConfig
-
-    skip = RESOLVED_AT_TRAINING | {f.name for f in dataclasses.fields(PreTrainedConfig)}
-    values = {
-        f.name: PRESETS["paper"].get(f.name, _default(f))
-        for f in dataclasses.fields(SigmaConfig)
-        if f.name not in skip
-    }
+    values = {f.name: PRESETS["paper"].get(f.name, _default(f)) for f in _compared_fields()}
     return json.loads(json.dumps(values))  # as a train_config.json stores them (tuples as lists)
 
 
