@@ -126,7 +126,6 @@ def probe_set(policy, pre, kf, cfg: IdentityConfig) -> dict:
     t, p, v, size = ncfg.tokens_per_side, ncfg.patch_size, ncfg.num_views, ncfg.img_size
     n_img = v * t * t
     scenes = [s for s in swap_scenes(kf, per_task=10**6) if s.task == cfg.task]
-    variation = {e["instruction"]: e["variation"] for e in _sidecar_episodes(kf)}
     store, remove = capture(net)
     feats: dict[str, list[np.ndarray]] = {}
     labels, groups, shared = [], [], 0
@@ -150,7 +149,7 @@ def probe_set(policy, pre, kf, cfg: IdentityConfig) -> dict:
                 else store["view token"].reshape(v, t * t, -1)[TOP_VIEW],
                 "fused token": store["fused token"][0, -n_img:][: t * t],
             }
-            for i, instruction in enumerate(scene.instructions):
+            for i, variation in enumerate(scene.variations):
                 c, r, k = int(cols[i]), int(rows[i]), int(tokens[i])
                 pr, pc = (k // t) * p, (k % t) * p
                 patch = top[:RENDERED, pr : pr + p, pc : pc + p].reshape(RENDERED, -1)
@@ -164,7 +163,7 @@ def probe_set(policy, pre, kf, cfg: IdentityConfig) -> dict:
                     row["local features"] = store["local features"][TOP_VIEW, :, r, c]
                 for name, f in row.items():
                     feats.setdefault(name, []).append(f.reshape(-1).cpu().numpy())
-                labels.append(variation.get(instruction, instruction))
+                labels.append(variation)
                 groups.append(si)
     finally:
         remove()
@@ -181,12 +180,6 @@ def probe_set(policy, pre, kf, cfg: IdentityConfig) -> dict:
         lo, hi = wilson_interval(round(acc * len(labels)), len(labels))
         out["accuracy"][name] = {"share": acc, "ci95": [lo, hi]}
     return out
-
-
-def _sidecar_episodes(kf) -> list[dict]:
-    from sigma_data.contract import read_sidecar
-
-    return read_sidecar(Path(kf.dataset.root)).get("episodes", [])
 
 
 def table(report: dict) -> str:

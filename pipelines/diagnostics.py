@@ -259,6 +259,9 @@ class SwapScene:
     rows: list[int]
     instructions: list[str]
     targets: np.ndarray  # (I, 3) first keyframe position per instruction
+    variations: list[
+        str
+    ]  # the variation each instruction names (the instruction itself where none is recorded)
 
 
 def swap_scenes(kf: KeyframeSet, per_task: int = 10) -> list[SwapScene]:
@@ -285,7 +288,9 @@ def swap_scenes(kf: KeyframeSet, per_task: int = 10) -> list[SwapScene]:
         taken[task] = taken.get(task, 0) + 1
         rows = [int(starts[e["episode_index"]]) for e in eps]
         targets = np.stack([kf.dataset[r]["action"][:3].numpy() for r in rows])
-        scenes.append(SwapScene(task, seed, rows, [e["instruction"] for e in eps], targets))
+        instructions = [e["instruction"] for e in eps]
+        variations = [e.get("variation", e["instruction"]) for e in eps]
+        scenes.append(SwapScene(task, seed, rows, instructions, targets, variations))
     return scenes
 
 
