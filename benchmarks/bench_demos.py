@@ -10,6 +10,10 @@ same seeds (``sigma-eval``, from 100000, Wilson 95% intervals). Every stage resu
 
     python -m benchmarks.bench_demos                     # ~50 min on 2 CPU cores
     python -m benchmarks.bench_demos --demos '[10,30]'   # the two smaller points
+    python -m benchmarks.bench_demos --tasks '[pick_place]' --demos '[30,100]' --steps 2000 --checkpoints 2 \
+        --heldout_episodes 10 --eval_episodes 20 --max_keyframes 16 --output_dir outputs/demos_pp --publish false \
+        --policy_args '[--policy.per_task_bounds=true,--policy.use_cpu_bf16_autocast=true]'
+                                                         # PickPlace alone (docs/learning.md), ~70 min
 """
 
 from __future__ import annotations
@@ -21,6 +25,7 @@ from pathlib import Path
 
 import draccus
 
+from pipelines.training import TrainRun
 from sigma_data.cameras import DEFAULT_CAMERAS
 
 os.environ.setdefault("HF_HUB_OFFLINE", "1")
@@ -43,6 +48,8 @@ class DemosBenchConfig:
     batch_size: int = 8
     checkpoints: int = 3
     seed: int = 0
+    # Further ``lerobot-train`` options of every run, after the preset (e.g. ``--policy.per_task_bounds=true``).
+    policy_args: list[str] = field(default_factory=list)
     # Closed-loop episodes per variation (seeds from 100000) and keyframes per episode.
     eval_episodes: int = 30
     max_keyframes: int = 12
@@ -80,28 +87,38 @@ def first_seeds(root: Path, n: int) -> list[int]:
     return sorted(idx for eps in by_variation.values() for _, idx in sorted(eps)[:n])
 
 
-def run_one(cfg: DemosBenchConfig, n: int, train_root: Path, held_root: Path) -> dict:
-    """Train on ``n`` demonstrations per variation (unless done), diagnose, evaluate (unless done)."""
-    from benchmarks.training_runs import train_diagnose_evaluate
-    from pipelines.training import TrainRun
+def run_dir(cfg: DemosBenchConfig, n: int) -> Path:
+    """Where the run with ``n`` demonstrations per variation trains, is diagnosed and is evaluated."""
+    return cfg.output_dir / "runs" / (f"demos_{n}" if cfg.seed == 0 else f"demos_{n}_seed{cfg.seed}")
+
+
+def train_run(cfg: DemosBenchConfig, n: int, train_root: Path) -> TrainRun:
+    """The ``lerobot-train`` run on the first ``n`` seeds of every variation in ``train_root``."""
     from sigma_data.suite import scene_bounds
 
     episodes = first_seeds(train_root, n)
-    run_dir = cfg.output_dir / "runs" / f"demos_{n}"
-    run = TrainRun(
+    return TrainRun(
         dataset_root=train_root,
-        output_dir=run_dir / "train",
+        output_dir=run_dir(cfg, n) / "train",
         steps=cfg.steps,
         batch_size=cfg.batch_size,
         scene_bounds=scene_bounds(cfg.tasks),
         seed=cfg.seed,
         job_name=f"demos_{n}",
         save_freq=max(1, cfg.steps // cfg.checkpoints),
-        extra_args=["--dataset.episodes=[" + ",".join(map(str, episodes)) + "]"],
+        extra_args=[*cfg.policy_args, "--dataset.episodes=[" + ",".join(map(str, episodes)) + "]"],
     )
+
+
+def run_one(cfg: DemosBenchConfig, n: int, train_root: Path, held_root: Path) -> dict:
+    """Train on ``n`` demonstrations per variation (unless done), diagnose, evaluate (unless done)."""
+    from benchmarks.training_runs import train_diagnose_evaluate
+
+    run = train_run(cfg, n, train_root)
+    episodes = first_seeds(train_root, n)
     done = train_diagnose_evaluate(
         run,
-        run_dir,
+        run_dir(cfg, n),
         held_root,
         cfg.tasks,
         f"[demos] {n} per variation ({len(episodes)} episodes)",
@@ -147,11 +164,13 @@ def cell(s: int, n: int, ci: list[float]) -> str:
 def markdown(cfg: DemosBenchConfig, results: list[dict]) -> str:
     rows = [numbers(r) for r in results]
     names = list(rows[0]["variations"]) if rows else []
+    options = "".join(f" `{a}`" for a in cfg.policy_args)
+    budget = " (the `make demo` budget)" if cfg.steps == DemosBenchConfig.steps else ""
     head = (
         f"Tasks {', '.join(cfg.tasks)}; N demonstrations per variation = the N lowest collection seeds (from 0) of "
         f"one dataset, so the sets are nested; held-out keyframes from {cfg.heldout_episodes} more per variation "
-        f"(seeds from 50000); 4 cameras at {cfg.image_size}²; `small` preset, {cfg.steps} `lerobot-train` steps × "
-        f"batch {cfg.batch_size}, seed {cfg.seed}, CPU (the `make demo` budget); closed loop: `sigma-eval`, "
+        f"(seeds from 50000); 4 cameras at {cfg.image_size}²; `small` preset{options}, {cfg.steps} `lerobot-train` "
+        f"steps × batch {cfg.batch_size}, seed {cfg.seed}, CPU{budget}; closed loop: `sigma-eval`, "
         f"{cfg.eval_episodes} episodes per variation (seeds from 100000), ≤ {cfg.max_keyframes} keyframes. Errors "
         "are medians over every keyframe with a goal at the last checkpoint; yaw is the mean absolute error of the "
         "yaw bin. Single runs (one training seed per row).\n\n"

@@ -20,7 +20,11 @@ the start frames of e.g. "stack the red cube on the green cube" and "stack the g
 seed are the same scene with different first targets. For each such scene and each of its instructions the
 checkpoint predicts from that one observation; the prediction should land at that instruction's target, nearer to
 it than to any other instruction's. Reported as ``swap_nearest`` (share of predictions nearest their own target:
-1 = follows the language, 1 / variations = ignores it) and ``swap_trans_cm_median``, over the first 10 seeds of
+1 = follows the language, 1 / variations = ignores it), ``swap_trans_cm_median`` and ``swap_spread`` (how far
+apart one scene's predictions under its instructions are, over how far apart their targets are, median over
+scenes: 1 = the instruction moves the prediction as far as it moves the target, 0 = the same prediction whatever
+the instruction, so a low ``swap_nearest`` with a high spread is a wrong choice, with a low one the instruction
+ignored), over the first 10 seeds (``--swap_scenes_per_task``) of
 every task that has such scenes, and per task (a suite's tasks differ: after 6000 steps one checkpoint followed
 the instruction in every NutAssembly scene and in 64% of its own training PickPlace scenes).
 
@@ -82,6 +86,8 @@ class DiagnoseConfig:
     # At most this many frames per set (evenly spaced; 0 = all).
     max_frames: int = 200
     batch_size: int = 16
+    # Scenes per task in the instruction swap (the first seeds recorded under several instructions).
+    swap_scenes_per_task: int = 10
     device: str = "cpu"
     # Where diagnostics.json, curves.png and curves.rrd go (default: <run>/diagnostics or <checkpoint>/..).
     output_dir: Path | None = None
@@ -299,10 +305,11 @@ def instruction_swap(policy: Any, pre: Any, kf: KeyframeSet, scenes: list[SwapSc
     more than one task, per task (``per_task``: {task: {"swap_scenes", "swap_nearest"}})."""
     import torch
 
-    nearest, errors, tasks = [], [], []
+    nearest, errors, tasks, spreads = [], [], [], []
     for scene in scenes:
         item = kf.dataset[scene.rows[0]]
         obs = {k: v[None] for k, v in item.items() if k.startswith("observation.")}
+        predicted = []
         for i, instruction in enumerate(scene.instructions):
             with torch.inference_mode():
                 pos = policy.predict(pre(obs | {"task": [instruction]})).action[0, :3].float().cpu().numpy()
@@ -310,20 +317,44 @@ def instruction_swap(policy: Any, pre: Any, kf: KeyframeSet, scenes: list[SwapSc
             nearest.append(int(np.argmin(dist)) == i)
             errors.append(100 * dist[i])
             tasks.append(scene.task)
+            predicted.append(pos)
+        apart = mean_pairwise_distance(scene.targets)
+        spreads.append(mean_pairwise_distance(np.stack(predicted)) / apart if apart > 1e-3 else np.nan)
     if not nearest:
         return {}
     out: dict[str, Any] = {
         "swap_scenes": len(scenes),
         "swap_nearest": float(np.mean(nearest)),
         "swap_trans_cm_median": float(np.median(errors)),
+        "swap_spread": _median_or_none(spreads),
     }
     if len(set(tasks)) > 1:
         hit, of = np.asarray(nearest), np.asarray(tasks)
+        scene_tasks, spread = np.asarray([s.task for s in scenes]), np.asarray(spreads)
         out["per_task"] = {
-            t: {"swap_scenes": sum(s.task == t for s in scenes), "swap_nearest": float(hit[of == t].mean())}
+            t: {
+                "swap_scenes": int((scene_tasks == t).sum()),
+                "swap_nearest": float(hit[of == t].mean()),
+                "swap_spread": _median_or_none(spread[scene_tasks == t]),
+            }
             for t in sorted(set(tasks))
         }
     return out
+
+
+def _median_or_none(values: Any) -> float | None:
+    """Median of the finite ``values``; None (JSON null) when there are none."""
+    finite = np.asarray(values, dtype=float)
+    finite = finite[np.isfinite(finite)]
+    return float(np.median(finite)) if finite.size else None
+
+
+def mean_pairwise_distance(points: np.ndarray) -> float:
+    """Mean distance between the rows of ``points`` (N, 3), over every pair; 0 for fewer than two."""
+    if len(points) < 2:
+        return 0.0
+    i, j = np.triu_indices(len(points), k=1)
+    return float(np.linalg.norm(points[i] - points[j], axis=-1).mean())
 
 
 def row_tasks(dataset: Any, rows: list[int]) -> np.ndarray | None:
@@ -446,7 +477,7 @@ def run_diagnose(cfg: DiagnoseConfig) -> dict[str, Any]:
     out_dir.mkdir(parents=True, exist_ok=True)
     sets = keyframe_sets(cfg, ckpts[-1][1])
     for kf in sets:
-        kf.swap = swap_scenes(kf)
+        kf.swap = swap_scenes(kf, cfg.swap_scenes_per_task)
     report: dict[str, Any] = {"checkpoints": [], "sets": {s.name: len(s.indices) for s in sets}}
     for step, ckpt in tqdm(ckpts, desc="sigma-diagnose", unit="checkpoint"):
         policy, pre, _ = load_policy(ckpt, cfg.device)
@@ -496,6 +527,8 @@ def summary_line(report: dict[str, Any]) -> str:
             )
             parts[-1] += f", instruction swap {100 * swap['swap_nearest']:.0f}% ({swap['swap_scenes']} scenes"
             parts[-1] += f": {by_task})" if by_task else ")"
+            if swap.get("swap_spread") is not None:
+                parts[-1] += f", spread {swap['swap_spread']:.2f}"
     step = last["step"]
     at = f"step {step}" if step >= 0 else "checkpoint"
     return f"sigma-diagnose: {at}: " + "; ".join(parts) + f" -> {report['output_dir']}"

@@ -7,7 +7,7 @@ import json
 
 import pytest
 
-from benchmarks.bench_demos import first_seeds
+from benchmarks.bench_demos import DemosBenchConfig, first_seeds, run_dir, train_run
 
 
 def _sidecar(root, episodes):
@@ -36,3 +36,23 @@ def test_first_seeds_needs_seeds(tmp_path):
     _sidecar(tmp_path, [])
     with pytest.raises(ValueError, match=r"sigma\.json"):
         first_seeds(tmp_path, 1)
+
+
+def test_train_run_passes_policy_args_and_the_nested_episodes(tmp_path):
+    eps = [
+        {"episode_index": i, "task": "pick_place", "variation": v, "seed": s}
+        for i, (v, s) in enumerate([("milk", 0), ("milk", 1), ("can", 0), ("can", 1)])
+    ]
+    _sidecar(tmp_path, eps)
+    cfg = DemosBenchConfig(
+        output_dir=tmp_path / "out",
+        tasks=["pick_place"],
+        seed=1,
+        policy_args=["--policy.per_task_bounds=true"],
+    )
+    run = train_run(cfg, 1, tmp_path)
+    assert run.extra_args == ["--policy.per_task_bounds=true", "--dataset.episodes=[0,2]"]
+    assert "--policy.per_task_bounds=true" in run.arguments()
+    # A second training seed gets its own run directory; seed 0 keeps the published one's name.
+    assert run.output_dir == tmp_path / "out" / "runs" / "demos_1_seed1" / "train"
+    assert run_dir(DemosBenchConfig(output_dir=tmp_path), 30) == tmp_path / "runs" / "demos_30"

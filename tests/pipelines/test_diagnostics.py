@@ -191,7 +191,10 @@ def test_instruction_swap_on_one_scene_under_two_instructions(tmp_path):
     assert swap["swap_trans_cm_median"] > 0
     # the same scene twice: both tasks score the same, and their mean is the overall share
     per_task = swap["per_task"]
-    assert per_task["reach"] == per_task["touch"] == {"swap_scenes": 1, "swap_nearest": swap["swap_nearest"]}
+    spread = swap["swap_spread"]
+    assert spread >= 0
+    same = {"swap_scenes": 1, "swap_nearest": swap["swap_nearest"], "swap_spread": pytest.approx(spread)}
+    assert per_task["reach"] == per_task["touch"] == same
     assert "per_task" not in instruction_swap(policy, pre, kf, scenes[:1])
     kf.swap = scenes
     report = {"checkpoints": [{"step": 5, **diagnose_checkpoint(policy, pre, [kf])}], "sets": {"heldout": 6}}
@@ -199,6 +202,16 @@ def test_instruction_swap_on_one_scene_under_two_instructions(tmp_path):
     share = f"{100 * swap['swap_nearest']:.0f}%"
     assert f"instruction swap {share} (2 scenes: reach {share}, touch {share})" in line
     assert swap_scenes(KeyframeSet("train", ds, rows, np.asarray(steps), episodes=[0, 2])) == []
+
+
+def test_swap_spread_compares_how_far_apart_predictions_and_targets_are():
+    """The spread's two means: every pair of rows, so three points on a line 1 and 2 apart give (1 + 2 + 3) / 3."""
+    from pipelines.diagnostics import _median_or_none, mean_pairwise_distance
+
+    line = np.array([[0.0, 0, 0], [1, 0, 0], [3, 0, 0]])
+    assert mean_pairwise_distance(line) == pytest.approx(2.0)
+    assert mean_pairwise_distance(line[:1]) == 0.0
+    assert _median_or_none([np.nan, 0.5, 1.5, 1.0]) == 1.0 and _median_or_none([np.nan]) is None
 
 
 def test_errors_per_task_on_a_dataset_that_names_its_tasks(tmp_path):
