@@ -92,11 +92,11 @@ def run_dir(cfg: DemosBenchConfig, n: int) -> Path:
     return cfg.output_dir / "runs" / (f"demos_{n}" if cfg.seed == 0 else f"demos_{n}_seed{cfg.seed}")
 
 
-def train_run(cfg: DemosBenchConfig, n: int, train_root: Path) -> TrainRun:
-    """The ``lerobot-train`` run on the first ``n`` seeds of every variation in ``train_root``."""
+def train_run(cfg: DemosBenchConfig, n: int, train_root: Path, episodes: list[int]) -> TrainRun:
+    """The ``lerobot-train`` run with ``n`` demonstrations per variation: ``episodes`` of ``train_root`` (the
+    first ``n`` seeds of every variation, ``first_seeds``)."""
     from sigma_data.suite import scene_bounds
 
-    episodes = first_seeds(train_root, n)
     return TrainRun(
         dataset_root=train_root,
         output_dir=run_dir(cfg, n) / "train",
@@ -114,8 +114,8 @@ def run_one(cfg: DemosBenchConfig, n: int, train_root: Path, held_root: Path) ->
     """Train on ``n`` demonstrations per variation (unless done), diagnose, evaluate (unless done)."""
     from benchmarks.training_runs import train_diagnose_evaluate
 
-    run = train_run(cfg, n, train_root)
     episodes = first_seeds(train_root, n)
+    run = train_run(cfg, n, train_root, episodes)
     done = train_diagnose_evaluate(
         run,
         run_dir(cfg, n),

@@ -302,7 +302,7 @@ def swap_scenes(kf: KeyframeSet, per_task: int = 10) -> list[SwapScene]:
 
 def instruction_swap(policy: Any, pre: Any, kf: KeyframeSet, scenes: list[SwapScene]) -> dict[str, Any]:
     """Predict every scene under each of its instructions (see module docstring); overall and, with scenes of
-    more than one task, per task (``per_task``: {task: {"swap_scenes", "swap_nearest"}})."""
+    more than one task, per task (``per_task``: {task: {"swap_scenes", "swap_nearest", "swap_spread"}})."""
     import torch
 
     nearest, errors, tasks, spreads = [], [], [], []

@@ -50,7 +50,7 @@ def test_train_run_passes_policy_args_and_the_nested_episodes(tmp_path):
         seed=1,
         policy_args=["--policy.per_task_bounds=true"],
     )
-    run = train_run(cfg, 1, tmp_path)
+    run = train_run(cfg, 1, tmp_path, first_seeds(tmp_path, 1))
     assert run.extra_args == ["--policy.per_task_bounds=true", "--dataset.episodes=[0,2]"]
     assert "--policy.per_task_bounds=true" in run.arguments()
     # A second training seed gets its own run directory; seed 0 keeps the published one's name.
