@@ -36,8 +36,9 @@ import draccus
 import numpy as np
 import torch
 
-from pipelines.diagnostics import DiagnoseConfig, keyframe_sets, swap_scenes
+from pipelines.diagnostics import DiagnoseConfig, keyframe_sets
 from pipelines.evaluate import wilson_interval
+from pipelines.instruction_swap import swap_scenes
 from sigma_policy.pointcloud import world_to_cube
 
 TOP_VIEW = 0  # sigma_policy.renderer.VIEW_NAMES[0]
@@ -125,7 +126,7 @@ def probe_set(policy, pre, kf, cfg: IdentityConfig) -> dict:
     ncfg = net.cfg
     t, p, v, size = ncfg.tokens_per_side, ncfg.patch_size, ncfg.num_views, ncfg.img_size
     n_img = v * t * t
-    scenes = [s for s in swap_scenes(kf, per_task=10**6) if s.task == cfg.task]
+    scenes = [s for s in swap_scenes(kf.dataset, kf.episodes, per_task=10**6) if s.task == cfg.task]
     store, remove = capture(net)
     feats: dict[str, list[np.ndarray]] = {}
     labels, groups, shared = [], [], 0

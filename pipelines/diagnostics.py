@@ -13,20 +13,17 @@ Errors are summarised (median, mean, 90th percentile, share within 1 cm / 2 cm /
 keyframe step (frame k of an episode predicts its keyframe k + 1: for Lift step 0 is the pre-grasp pose, 1 the
 grasp, 2 the close, 3 the lift), which tells *where* a policy fails; on a dataset sigma collected (its
 ``meta/sigma.json`` names each episode's task) also per task, with each task's steps, which tells *which* task of a
-multi-task policy fails.
+multi-task policy fails, and, where a task has several variations (PickPlace's four objects), per variation: the
+summary line gives each variation's first keyframe, which tells which instruction a policy has not learned (one
+PickPlace checkpoint reached the milk and the cereal within 2 cm and went to another object for the bread and the
+can; docs/learning.md).
 
-**Instruction swap**: sigma collects every variation of a task from the same seeds, and a seed fixes the scene, so
-the start frames of e.g. "stack the red cube on the green cube" and "stack the green cube on the red cube" with one
-seed are the same scene with different first targets. For each such scene and each of its instructions the
-checkpoint predicts from that one observation; the prediction should land at that instruction's target, nearer to
-it than to any other instruction's. Reported as ``swap_nearest`` (share of predictions nearest their own target:
-1 = follows the language, 1 / variations = ignores it), ``swap_trans_cm_median`` and ``swap_spread`` (how far
-apart one scene's predictions under its instructions are, over how far apart their targets are, median over
-scenes: 1 = the instruction moves the prediction as far as it moves the target, 0 = the same prediction whatever
-the instruction, so a low ``swap_nearest`` with a high spread is a wrong choice, with a low one the instruction
-ignored), over the first 10 seeds (``--swap_scenes_per_task``) of
-every task that has such scenes, and per task (a suite's tasks differ: after 6000 steps one checkpoint followed
-the instruction in every NutAssembly scene and in 64% of its own training PickPlace scenes).
+**Instruction swap** (``pipelines/instruction_swap.py``): on the scenes sigma recorded under several instructions
+(same task and seed), the prediction from each start frame under each instruction should land at that instruction's
+target: ``swap_nearest``, ``swap_trans_cm_median`` and ``swap_spread``, over the first 10 seeds
+(``--swap_scenes_per_task``) of every task that has such scenes, and per task (a suite's tasks differ: after 6000
+steps one checkpoint followed the instruction in every NutAssembly scene and in 64% of its own training PickPlace
+scenes).
 
 Pointed at a ``lerobot-train`` output directory, it diagnoses every saved checkpoint (``checkpoints/<step>/``) on
 the training keyframes and on held-out keyframes, and writes learning curves: ``diagnostics.json`` (every number),
@@ -52,6 +49,8 @@ from typing import Any
 
 import draccus
 import numpy as np
+
+from pipelines.instruction_swap import SwapScene, instruction_swap, swap_scenes
 
 METRICS = (
     "trans_cm_median",
@@ -256,124 +255,25 @@ def predict_rows(policy: Any, pre: Any, kf: KeyframeSet, batch_size: int) -> tup
     return np.concatenate(preds), np.concatenate(trues)
 
 
-@dataclass
-class SwapScene:
-    """One scene (task, seed) seen under several instructions: the start-frame row and first target of each."""
-
-    task: str
-    seed: int
-    rows: list[int]
-    instructions: list[str]
-    targets: np.ndarray  # (I, 3) first keyframe position per instruction
-    variations: list[
-        str
-    ]  # the variation each instruction names (the instruction itself where none is recorded)
-
-
-def swap_scenes(kf: KeyframeSet, per_task: int = 10) -> list[SwapScene]:
-    """Scenes of ``kf``'s dataset recorded under more than one instruction (same task and seed): the first
-    ``per_task`` seeds of every task that has them, so each multi-instruction task of a suite is represented."""
-    from sigma_data.contract import SIDECAR, read_sidecar
-
-    root = Path(kf.dataset.root)
-    if not (root / SIDECAR).exists():
-        return []  # not collected by sigma: no seeds to pair scenes by
-    groups: dict[tuple[str, int], list[dict]] = {}
-    wanted = None if kf.episodes is None else set(kf.episodes)
-    for ep in read_sidecar(root).get("episodes", []):
-        if wanted is not None and ep["episode_index"] not in wanted:
-            continue
-        if ep.get("seed") is not None and not ep.get("chain_start"):
-            groups.setdefault((ep["task"], int(ep["seed"])), []).append(ep)
-    starts = kf.dataset.meta.episodes["dataset_from_index"]
-    scenes: list[SwapScene] = []
-    taken: dict[str, int] = {}
-    for (task, seed), eps in sorted(groups.items()):
-        if len({e["instruction"] for e in eps}) < 2 or taken.get(task, 0) == per_task:
-            continue
-        taken[task] = taken.get(task, 0) + 1
-        rows = [int(starts[e["episode_index"]]) for e in eps]
-        targets = np.stack([kf.dataset[r]["action"][:3].numpy() for r in rows])
-        instructions = [e["instruction"] for e in eps]
-        variations = [e.get("variation", e["instruction"]) for e in eps]
-        scenes.append(SwapScene(task, seed, rows, instructions, targets, variations))
-    return scenes
-
-
-def instruction_swap(policy: Any, pre: Any, kf: KeyframeSet, scenes: list[SwapScene]) -> dict[str, Any]:
-    """Predict every scene under each of its instructions (see module docstring); overall and, with scenes of
-    more than one task, per task (``per_task``: {task: {"swap_scenes", "swap_nearest", "swap_spread"}})."""
-    import torch
-
-    nearest, errors, tasks, spreads = [], [], [], []
-    for scene in scenes:
-        item = kf.dataset[scene.rows[0]]
-        obs = {k: v[None] for k, v in item.items() if k.startswith("observation.")}
-        predicted = []
-        for i, instruction in enumerate(scene.instructions):
-            with torch.inference_mode():
-                pos = policy.predict(pre(obs | {"task": [instruction]})).action[0, :3].float().cpu().numpy()
-            dist = np.linalg.norm(scene.targets - pos, axis=-1)
-            nearest.append(int(np.argmin(dist)) == i)
-            errors.append(100 * dist[i])
-            tasks.append(scene.task)
-            predicted.append(pos)
-        apart = mean_pairwise_distance(scene.targets)
-        spreads.append(mean_pairwise_distance(np.stack(predicted)) / apart if apart > 1e-3 else np.nan)
-    if not nearest:
-        return {}
-    out: dict[str, Any] = {
-        "swap_scenes": len(scenes),
-        "swap_nearest": float(np.mean(nearest)),
-        "swap_trans_cm_median": float(np.median(errors)),
-        "swap_spread": _median_or_none(spreads),
-    }
-    if len(set(tasks)) > 1:
-        hit, of = np.asarray(nearest), np.asarray(tasks)
-        scene_tasks, spread = np.asarray([s.task for s in scenes]), np.asarray(spreads)
-        out["per_task"] = {
-            t: {
-                "swap_scenes": int((scene_tasks == t).sum()),
-                "swap_nearest": float(hit[of == t].mean()),
-                "swap_spread": _median_or_none(spread[scene_tasks == t]),
-            }
-            for t in sorted(set(tasks))
-        }
-    return out
-
-
-def _median_or_none(values: Any) -> float | None:
-    """Median of the finite ``values``; None (JSON null) when there are none."""
-    finite = np.asarray(values, dtype=float)
-    finite = finite[np.isfinite(finite)]
-    return float(np.median(finite)) if finite.size else None
-
-
-def mean_pairwise_distance(points: np.ndarray) -> float:
-    """Mean distance between the rows of ``points`` (N, 3), over every pair; 0 for fewer than two."""
-    if len(points) < 2:
-        return 0.0
-    i, j = np.triu_indices(len(points), k=1)
-    return float(np.linalg.norm(points[i] - points[j], axis=-1).mean())
-
-
-def row_tasks(dataset: Any, rows: list[int]) -> np.ndarray | None:
-    """The task (``meta/sigma.json``'s ``episodes[].task``) of each dataset row; None for a dataset sigma did not
-    collect (no sidecar)."""
+def row_labels(dataset: Any, rows: list[int], key: str) -> np.ndarray | None:
+    """What ``meta/sigma.json`` records under ``key`` (``task``, ``variation``) for the episode of each dataset row
+    ("unknown" where an episode lacks it); None for a dataset sigma did not collect (no sidecar)."""
     from sigma_data.contract import SIDECAR, read_sidecar
 
     root = Path(dataset.root)
     if not (root / SIDECAR).exists():
         return None
-    task_of = {int(e["episode_index"]): str(e["task"]) for e in read_sidecar(root).get("episodes", [])}
+    label_of = {
+        int(e["episode_index"]): str(e.get(key, "unknown")) for e in read_sidecar(root).get("episodes", [])
+    }
     eps = dataset.meta.episodes
-    row_task: dict[int, str] = {}
+    row_label: dict[int, str] = {}
     for ep in range(len(eps)):
-        task = task_of.get(int(eps["episode_index"][ep]), "unknown")
-        row_task.update(
-            dict.fromkeys(range(int(eps["dataset_from_index"][ep]), int(eps["dataset_to_index"][ep])), task)
+        label = label_of.get(int(eps["episode_index"][ep]), "unknown")
+        row_label.update(
+            dict.fromkeys(range(int(eps["dataset_from_index"][ep]), int(eps["dataset_to_index"][ep])), label)
         )
-    return np.array([row_task[int(r)] for r in rows])
+    return np.array([row_label[int(r)] for r in rows])
 
 
 def summaries(err: dict[str, np.ndarray], steps: np.ndarray) -> dict[str, Any]:
@@ -384,24 +284,33 @@ def summaries(err: dict[str, np.ndarray], steps: np.ndarray) -> dict[str, Any]:
     return {"all": summarise_errors(err), "per_step": per_step}
 
 
+def split_summaries(err: dict[str, np.ndarray], steps: np.ndarray, labels: np.ndarray) -> dict[str, Any]:
+    """:func:`summaries` of the frames of each label (task or variation): ``{label: {"all", "per_step"}}``."""
+    return {
+        label: summaries({k: v[labels == label] for k, v in err.items()}, steps[labels == label])
+        for label in sorted(set(labels.tolist()))
+    }
+
+
 def diagnose_checkpoint(
     policy: Any, pre: Any, sets: list[KeyframeSet], batch_size: int = 16
 ) -> dict[str, dict[str, Any]]:
     """Per set: the overall summary, one per keyframe step and, on a sigma-collected dataset, the same per task
-    (``per_task``: {task: {"all", "per_step"}})."""
+    (``per_task``: {task: {"all", "per_step"}}) and, where a task has several variations, per variation
+    (``per_variation``: {variation: {"all", "per_step"}}); the instruction swap where the set has its scenes."""
     out: dict[str, dict[str, Any]] = {}
     for kf in sets:
         pred, true = predict_rows(policy, pre, kf, batch_size)
         err = action_errors(pred, true)
         out[kf.name] = summaries(err, kf.steps)
-        tasks = row_tasks(kf.dataset, kf.indices)
+        tasks = row_labels(kf.dataset, kf.indices, "task")
         if tasks is not None:
-            out[kf.name]["per_task"] = {
-                t: summaries({k: v[tasks == t] for k, v in err.items()}, kf.steps[tasks == t])
-                for t in sorted(set(tasks.tolist()))
-            }
+            out[kf.name]["per_task"] = split_summaries(err, kf.steps, tasks)
+            variations = row_labels(kf.dataset, kf.indices, "variation")
+            if len(set(variations.tolist())) > len(set(tasks.tolist())):  # some task has several variations
+                out[kf.name]["per_variation"] = split_summaries(err, kf.steps, variations)
         if kf.swap:
-            out[kf.name]["swap"] = instruction_swap(policy, pre, kf, kf.swap)
+            out[kf.name]["swap"] = instruction_swap(policy, pre, kf.dataset, kf.swap)
     return out
 
 
@@ -477,7 +386,7 @@ def run_diagnose(cfg: DiagnoseConfig) -> dict[str, Any]:
     out_dir.mkdir(parents=True, exist_ok=True)
     sets = keyframe_sets(cfg, ckpts[-1][1])
     for kf in sets:
-        kf.swap = swap_scenes(kf, cfg.swap_scenes_per_task)
+        kf.swap = swap_scenes(kf.dataset, kf.episodes, cfg.swap_scenes_per_task)
     report: dict[str, Any] = {"checkpoints": [], "sets": {s.name: len(s.indices) for s in sets}}
     for step, ckpt in tqdm(ckpts, desc="sigma-diagnose", unit="checkpoint"):
         policy, pre, _ = load_policy(ckpt, cfg.device)
@@ -518,6 +427,17 @@ def summary_line(report: dict[str, Any]) -> str:
             parts[-1] += (
                 " ["
                 + ", ".join(f"{t} {v['all']['trans_cm_median']:.2f} cm" for t, v in per_task.items())
+                + "]"
+            )
+        first = {v: s["per_step"].get("0") for v, s in last[name].get("per_variation", {}).items()}
+        if any(first.values()):
+            parts[-1] += (
+                " [first keyframe: "
+                + ", ".join(
+                    f"{v} {f['trans_cm_median']:.1f} cm {f['rot_deg_median']:.0f} deg"
+                    for v, f in first.items()
+                    if f
+                )
                 + "]"
             )
         swap = last[name].get("swap")

@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from benchmarks.bench_identity import IdentityConfig, main, probe_accuracy
-from tests.pipelines.test_diagnostics import _save_checkpoint
+from tests.pipelines.checkpoint_fixtures import save_tiny_checkpoint
 from tests.sigma_policy.tiny_dataset import write_tiny_keyframe_dataset
 
 
@@ -45,7 +45,7 @@ def test_probe_on_a_checkpoint_reads_each_cube_at_its_own_pixels(tmp_path):
         ]
     }
     (root / "meta" / "sigma.json").write_text(json.dumps(sidecar))
-    _save_checkpoint(root, tmp_path / "ckpt", list(range(6)), 0)
+    save_tiny_checkpoint(root, tmp_path / "ckpt", list(range(6)), 0)
     out = tmp_path / "identity.json"
     report = main(IdentityConfig(checkpoint=tmp_path / "ckpt", task="reach", folds=3, output=out))
     train = report["sets"]["train"]

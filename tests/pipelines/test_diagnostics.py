@@ -8,7 +8,6 @@ import math
 import numpy as np
 import pytest
 import torch
-from lerobot.policies.factory import make_pre_post_processors
 
 from pipelines.diagnostics import (
     DiagnoseConfig,
@@ -18,11 +17,11 @@ from pipelines.diagnostics import (
     run_diagnose,
     summarise_errors,
 )
-from sigma_policy.configuration_sigma import SigmaConfig
 from sigma_policy.modeling_sigma import SigmaPolicy
 from sigma_policy.rotation import euler_xyz_to_quat
+from tests.pipelines.checkpoint_fixtures import save_tiny_checkpoint
 from tests.pipelines.viz_fixtures import read_rrd
-from tests.sigma_policy.tiny_dataset import BOUNDS, write_tiny_keyframe_dataset
+from tests.sigma_policy.tiny_dataset import write_tiny_keyframe_dataset
 
 
 def _action(xyz, euler_deg, grip=1.0, coll=0.0) -> np.ndarray:
@@ -61,36 +60,11 @@ def test_summaries_count_the_tails_beyond_each_threshold():
     assert summarise_errors({k: v[:0] for k, v in err.items()})["frames"] == 0
 
 
-def _save_checkpoint(root, out, train_episodes, seed):
-    torch.manual_seed(seed)
-    cfg = SigmaConfig(
-        device="cpu",
-        scene_bounds=list(BOUNDS),
-        preset="small",
-        img_size=32,
-        patch_size=8,
-        attn_dim=64,
-        attn_heads=2,
-    )
-    ds = open_dataset(root)
-    from lerobot.policies.factory import make_policy
-
-    policy = make_policy(cfg, ds_meta=ds.meta)
-    pre, post = make_pre_post_processors(cfg, dataset_stats=ds.meta.stats)
-    out.mkdir(parents=True)
-    for obj in (policy, pre, post):
-        obj.save_pretrained(out)
-    (out / "train_config.json").write_text(
-        json.dumps({"dataset": {"root": str(root), "episodes": train_episodes}})
-    )
-    return policy
-
-
 def test_run_curves_on_training_and_held_out_episodes(tmp_path):
     root = write_tiny_keyframe_dataset(tmp_path / "tiny", episodes=4, size=32)
     run = tmp_path / "run"
     for step, seed in ((5, 0), (10, 1)):
-        _save_checkpoint(root, run / "checkpoints" / f"{step:06d}" / "pretrained_model", [0, 1, 2], seed)
+        save_tiny_checkpoint(root, run / "checkpoints" / f"{step:06d}" / "pretrained_model", [0, 1, 2], seed)
 
     report = run_diagnose(DiagnoseConfig(run=run, batch_size=4))
 
@@ -136,7 +110,7 @@ def test_checkpoint_prediction_matches_select_action(tmp_path):
 
     root = write_tiny_keyframe_dataset(tmp_path / "tiny", episodes=1, size=32)
     ckpt = tmp_path / "ckpt"
-    _save_checkpoint(root, ckpt, [0], 0)
+    save_tiny_checkpoint(root, ckpt, [0], 0)
     policy, pre, _ = load_policy(ckpt)
     ds = open_dataset(root)
     pred, true = predict_rows(policy, pre, KeyframeSet("train", ds, [0, 1], np.array([0, 1])), batch_size=2)
@@ -150,77 +124,13 @@ def test_checkpoint_prediction_matches_select_action(tmp_path):
     assert isinstance(policy, SigmaPolicy)
 
 
-def test_instruction_swap_on_one_scene_under_two_instructions(tmp_path):
-    """The "language" tiny dataset is one scene under two instructions; a sidecar gives both the same seed.
-    Episodes 2-3 repeat the pair under a second task name: every task gets its scenes, and the swap is also
-    reported per task."""
-    from pipelines.checkpoints import load_policy
-    from pipelines.diagnostics import (
-        KeyframeSet,
-        diagnose_checkpoint,
-        instruction_swap,
-        summary_line,
-        swap_scenes,
-    )
-
-    root = write_tiny_keyframe_dataset(tmp_path / "lang", episodes=4, size=32, scenes="language")
-    ds = open_dataset(root)
-    instructions = [ds[int(ds.meta.episodes["dataset_from_index"][e])]["task"] for e in range(4)]
-    assert instructions[:2] == instructions[2:] and instructions[0] != instructions[1]
-    sidecar = {
-        "episodes": [
-            {
-                "episode_index": e,
-                "task": "reach" if e < 2 else "touch",
-                "seed": 3,
-                "instruction": instructions[e],
-            }
-            for e in range(4)
-        ]
-    }
-    (root / "meta" / "sigma.json").write_text(json.dumps(sidecar))
-    rows, steps = goal_rows(ds)
-    kf = KeyframeSet("heldout", ds, rows, np.asarray(steps))
-    scenes = swap_scenes(kf, per_task=1)
-    assert [s.task for s in scenes] == ["reach", "touch"] and scenes[0].instructions == instructions[:2]
-    assert np.linalg.norm(scenes[0].targets[0] - scenes[0].targets[1]) > 0.1  # two different cubes
-    _save_checkpoint(root, tmp_path / "ckpt", [0, 1], 0)
-    policy, pre, _ = load_policy(tmp_path / "ckpt")
-    swap = instruction_swap(policy, pre, kf, scenes)
-    assert swap["swap_scenes"] == 2 and swap["swap_nearest"] in (0.0, 0.25, 0.5, 0.75, 1.0)
-    assert swap["swap_trans_cm_median"] > 0
-    # the same scene twice: both tasks score the same, and their mean is the overall share
-    per_task = swap["per_task"]
-    spread = swap["swap_spread"]
-    assert spread >= 0
-    same = {"swap_scenes": 1, "swap_nearest": swap["swap_nearest"], "swap_spread": pytest.approx(spread)}
-    assert per_task["reach"] == per_task["touch"] == same
-    assert "per_task" not in instruction_swap(policy, pre, kf, scenes[:1])
-    kf.swap = scenes
-    report = {"checkpoints": [{"step": 5, **diagnose_checkpoint(policy, pre, [kf])}], "sets": {"heldout": 6}}
-    line = summary_line(report | {"output_dir": "x"})
-    share = f"{100 * swap['swap_nearest']:.0f}%"
-    assert f"instruction swap {share} (2 scenes: reach {share}, touch {share})" in line
-    assert swap_scenes(KeyframeSet("train", ds, rows, np.asarray(steps), episodes=[0, 2])) == []
-
-
-def test_swap_spread_compares_how_far_apart_predictions_and_targets_are():
-    """The spread's two means: every pair of rows, so three points on a line 1 and 2 apart give (1 + 2 + 3) / 3."""
-    from pipelines.diagnostics import _median_or_none, mean_pairwise_distance
-
-    line = np.array([[0.0, 0, 0], [1, 0, 0], [3, 0, 0]])
-    assert mean_pairwise_distance(line) == pytest.approx(2.0)
-    assert mean_pairwise_distance(line[:1]) == 0.0
-    assert _median_or_none([np.nan, 0.5, 1.5, 1.0]) == 1.0 and _median_or_none([np.nan]) is None
-
-
 def test_errors_per_task_on_a_dataset_that_names_its_tasks(tmp_path):
     """A multi-task dataset's errors split by the task its sidecar records per episode; without one, no split."""
     from pipelines.checkpoints import load_policy
     from pipelines.diagnostics import KeyframeSet, diagnose_checkpoint, summary_line
 
     root = write_tiny_keyframe_dataset(tmp_path / "tiny", episodes=3, size=32)
-    _save_checkpoint(root, tmp_path / "ckpt", [0, 1, 2], 0)
+    save_tiny_checkpoint(root, tmp_path / "ckpt", [0, 1, 2], 0)
     policy, pre, _ = load_policy(tmp_path / "ckpt")
     ds = open_dataset(root)
     rows, steps = goal_rows(ds)
@@ -242,3 +152,24 @@ def test_errors_per_task_on_a_dataset_that_names_its_tasks(tmp_path):
         {"checkpoints": [{"step": 5, "train": report}], "sets": {"train": 6}, "output_dir": "x"}
     )
     assert "push" in line and "reach" in line
+    assert "per_variation" not in report  # one variation per task: the task split says it all
+
+    # Two variations of "reach" (two objects, say): the same frames split by variation too, and the summary line
+    # names each variation's first keyframe (step 0).
+    for ep, variation in zip(sidecar["episodes"], ["left", "right", "push_block"], strict=True):
+        ep["variation"] = variation
+    (root / "meta" / "sigma.json").write_text(json.dumps(sidecar))
+    report = diagnose_checkpoint(policy, pre, [kf])["train"]
+    per_variation = report["per_variation"]
+    assert {v: s["all"]["frames"] for v, s in per_variation.items()} == {
+        "left": 2,
+        "push_block": 2,
+        "right": 2,
+    }
+    assert per_variation["push_block"] == report["per_task"]["push"]
+    left = per_variation["left"]["per_step"]["0"]
+    assert left["frames"] == 1
+    line = summary_line(
+        {"checkpoints": [{"step": 5, "train": report}], "sets": {"train": 6}, "output_dir": "x"}
+    )
+    assert f"first keyframe: left {left['trans_cm_median']:.1f} cm {left['rot_deg_median']:.0f} deg" in line
