@@ -17,6 +17,9 @@ from pathlib import Path
 from typing import Any
 
 RESULTS_DIR = Path(__file__).resolve().parent.parent / "benchmarks" / "results"
+# A paragraph of a fragment that starts with this was written by hand (dated, with its own commands): a rerun of the
+# benchmark keeps it, and everything after it, below the new table.
+HAND_NOTES = "Notes (added by hand"
 
 
 def machine_description() -> str:
@@ -74,7 +77,9 @@ def write_report(
 ) -> Path:
     """Write ``<results_dir>/<name>.md`` (title, command, machine, date, table, notes) and ``<name>.json``.
 
-    Returns the Markdown path. ``data`` must be JSON-serialisable (the raw numbers behind the table).
+    Hand-written notes of the fragment it replaces (from the first line that starts with :data:`HAND_NOTES` to the
+    end) are kept after the new ``notes``. Returns the Markdown path. ``data`` must be JSON-serialisable (the raw
+    numbers behind the table).
     """
     out = Path(results_dir or RESULTS_DIR)
     out.mkdir(parents=True, exist_ok=True)
@@ -85,12 +90,21 @@ def write_report(
     )
     text = header + markdown.strip() + "\n" + (f"\n{notes.strip()}\n" if notes.strip() else "")
     md_path = out / f"{name}.md"
+    kept = hand_notes(md_path.read_text()) if md_path.exists() else ""
+    text += f"\n{kept}" if kept else ""
     md_path.write_text(text)
     payload = {"name": name, "title": title, "command": command_line(), "machine": machine_description()}
     payload["date"] = time.strftime("%Y-%m-%d")
     payload["data"] = data
     (out / f"{name}.json").write_text(json.dumps(payload, indent=1, default=str) + "\n")
     return md_path
+
+
+def hand_notes(fragment: str) -> str:
+    """The hand-written tail of a fragment: from its first line that starts with :data:`HAND_NOTES` ("" if none)."""
+    lines = fragment.splitlines(keepends=True)
+    start = next((i for i, line in enumerate(lines) if line.startswith(HAND_NOTES)), None)
+    return "" if start is None else "".join(lines[start:]).rstrip() + "\n"
 
 
 def start_run_dir(output_dir: Path, fresh: bool, stages: tuple[str, ...] = ("train", "eval")) -> Path:

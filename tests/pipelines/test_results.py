@@ -26,6 +26,22 @@ def test_write_report_writes_markdown_and_json_with_command_and_machine(tmp_path
     assert payload["command"] and payload["machine"] in machine
 
 
+def test_a_rerun_keeps_the_hand_written_notes_below_the_new_table(tmp_path):
+    write_report("demos", "Demos", "| old table |", {}, "generated note", tmp_path)
+    md = tmp_path / "demos.md"
+    md.write_text(
+        md.read_text() + "\nNotes (added by hand, 2026-11-27). A **finding**.\n\nIts second paragraph.\n"
+    )
+    text = write_report("demos", "Demos", "| new table |", {}, "new generated note", tmp_path).read_text()
+    assert "old table" not in text and "generated note" not in text.replace("new generated note", "")
+    assert text.index("| new table |") < text.index("new generated note") < text.index("Notes (added by hand")
+    assert text.endswith("A **finding**.\n\nIts second paragraph.\n")
+    assert (
+        write_report("demos", "Demos", "| t |", {}, "", tmp_path).read_text().count("Notes (added by hand")
+        == 1
+    )
+
+
 def test_stitch_orders_sections_names_missing_and_failed_ones(tmp_path):
     # Written out of order: the report order is fixed (NAMES, below).
     write_report("policy", "Policy speed", "| policy table |", {}, results_dir=tmp_path)
