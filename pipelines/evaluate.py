@@ -103,7 +103,9 @@ def failure_reason(result: EpisodeResult, max_keyframes: int) -> str | None:
     another variation's success state: the policy did the other instruction); ``wrong object at keyframe k: went
     for <variation>`` (the gripper first closed nearer another variation's object than the instructed one, see
     :func:`nearest_variation`: the policy did not ground the instruction); ``grasp missed at keyframe k`` (the
-    gripper closed on nothing: finger gap below 1 cm once the close has finished, :func:`_settled_gap`);
+    gripper closed on nothing: finger gap below 1 cm once the close has finished, :func:`_settled_gap`; where the
+    task's objects have ``points``, followed by how the object sat between the open fingers, :func:`grasp_fit`:
+    wider than the 78 mm gap means the hand's yaw was wrong, far off centre its position);
     ``dropped at keyframe k`` (something was held, then the gripper opened away from success); ``repeats keyframe
     k`` (the next keyframe is the same pose and gripper command: stuck); ``keyframe k not reached
     (stalled|budget)`` (the executor could not get the arm there); ``timeout after N keyframes`` (every move
@@ -122,7 +124,7 @@ def failure_reason(result: EpisodeResult, max_keyframes: int) -> str | None:
         if step["closed_now"] and not held and nearest is not None and nearest != result.variation:
             return f"wrong object at keyframe {k}: went for {nearest}"
         if step["closed_now"] and _settled_gap(result.trace, i) < EMPTY_GRIP_GAP_M:
-            return f"grasp missed at keyframe {k}"
+            return f"grasp missed at keyframe {k}" + _fit_text(result.trace, i)
         held = held or step["closed_now"]
         if held and step["opened_now"]:
             return f"dropped at keyframe {k}"
@@ -136,6 +138,15 @@ def failure_reason(result: EpisodeResult, max_keyframes: int) -> str | None:
     return f"timeout after {len(result.trace)} keyframes" + (
         "" if len(result.trace) >= max_keyframes else " (stopped)"
     )
+
+
+def _fit_text(trace: list[dict], i: int) -> str:
+    """How the object sat between the fingers for the close at ``trace[i]`` (:func:`grasp_fit`), from the keyframe
+    before it where the hand was already down (the grasp pose, fingers open), else from the close itself."""
+    fit = next((trace[j] for j in (i - 1, i) if j >= 0 and "across_fingers_mm" in trace[j]), None)
+    if fit is None:
+        return ""
+    return f" ({fit['across_fingers_mm']} mm across the fingers, {fit['off_centre_mm']} mm off centre)"
 
 
 def _settled_gap(trace: list[dict], i: int) -> float:
@@ -269,7 +280,8 @@ class _Worker:
                         "opened_now": now_open and not was_open,
                         "finger_gap_m": round(float(abs(fingers[0]) + abs(fingers[1])), 4),
                     }
-                    | nearest_variation(env)
+                    | (near := nearest_variation(env))
+                    | grasp_fit(env, near.get("nearest", job.variation))
                 )
                 was_open = now_open
                 if terminated:
@@ -334,6 +346,41 @@ def nearest_variation(env) -> dict[str, str]:
     site = grip_site_frame(env.env)[0][:2]
     dist = {v.name: float(np.linalg.norm(task.target(env.env, v)[:2] - site)) for v in task.variations}
     return {"nearest": min(dist, key=dist.get)}
+
+
+# The finger pads reach this far below the grip site (m): an object's vertices above it are what they close on
+# (the vertices above, not a band at the pads' height: a can's or a box's mesh has vertices only at its corners).
+PAD_BELOW_SITE_M = 0.01
+
+
+def grasp_fit(env, variation: str) -> dict[str, int]:
+    """How the object of ``variation`` sits between the fingers now, from its vertices (``TaskSpec.points``) above
+    the pads' lower edge: ``across_fingers_mm``, its width along the closing axis (more than the open gap, 78 mm
+    for the Panda, cannot be grasped at this yaw), and ``off_centre_mm``, how far its middle is from the fingers'
+    midpoint along that axis. ``{}`` for a task without ``points`` or a hand not down at the object.
+
+    At the expert's grasp (seed 0) PickPlace's objects are 31-50 mm across the fingers; turned 45° from it the
+    cereal box is 93 mm (it no longer fits), the bread 62 mm and the milk carton 56 mm (they still do), the can 50.
+    """
+    import numpy as np
+
+    from sigma_data.control import grip_site_frame
+
+    task = env.task
+    if task.points is None:
+        return {}
+    site, rot = grip_site_frame(env.env)
+    pts = task.points(env.env, next(v for v in task.variations if v.name == variation))
+    band = pts[pts[:, 2] > site[2] - PAD_BELOW_SITE_M]
+    if len(band) == 0:
+        return {}
+    closing = rot[:2, 0] / np.linalg.norm(rot[:2, 0])  # the site's x axis points from one finger to the other
+    proj = band[:, :2] @ closing
+    middle = 0.5 * (proj.max() + proj.min())
+    return {
+        "across_fingers_mm": round(1000 * float(proj.max() - proj.min())),
+        "off_centre_mm": round(1000 * abs(float(middle - site[:2] @ closing))),
+    }
 
 
 def other_variation_done(env) -> str | None:

@@ -109,6 +109,7 @@ TASKS: dict[str, TaskSpec] = {
             expert=pick_place_expert,
             success=pick_place.success,
             target=pick_place.target,
+            points=pick_place.points,
             max_steps=500,
         ),
         TaskSpec(

@@ -24,7 +24,7 @@ import numpy as np
 
 from sigma_data.control import grip_site_frame, site_yaw, top_down_quat, wrap_angle
 from sigma_data.experts.base import EpisodeRecorder, ExpertFailure, WaypointArm, check_grasp
-from sigma_data.tasks.pick_place import object_index
+from sigma_data.tasks.pick_place import object_index, object_points
 
 if TYPE_CHECKING:
     from sigma_data.tasks.spec import Variation
@@ -47,24 +47,6 @@ WALL_MARGIN = 0.02  # object footprint to quadrant wall
 RETREAT = 0.10
 SETTLE_SPEED = 0.0005  # m per control step: objects count as at rest below this
 SETTLE_MAX_STEPS = 30
-
-
-def object_points(env: Any, obj: Any) -> np.ndarray:
-    """World-frame vertices (N, 3) of a robosuite object's collision geoms (meshes and boxes)."""
-    model, data = env.sim.model._model, env.sim.data._data
-    points = []
-    for name in obj.contact_geoms:
-        gid = env.sim.model.geom_name2id(name)
-        rot = data.geom_xmat[gid].reshape(3, 3)
-        if model.geom_type[gid] == 7:  # mjGEOM_MESH: vertices are in the geom frame
-            mid = model.geom_dataid[gid]
-            start, count = model.mesh_vertadr[mid], model.mesh_vertnum[mid]
-            local = model.mesh_vert[start : start + count]
-        else:  # box-like bounding corners for primitives
-            size = model.geom_size[gid]
-            local = np.array([[sx, sy, sz] for sx in (-1, 1) for sy in (-1, 1) for sz in (-1, 1)]) * size
-        points.append(data.geom_xpos[gid] + local @ rot.T)
-    return np.concatenate(points)
 
 
 # Where the open gripper sweeps when it descends to a top-down grasp, in the hand frame: coordinate along

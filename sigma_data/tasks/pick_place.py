@@ -30,6 +30,29 @@ def object_body_id(env: Any, name: str) -> int:
     return int(env.obj_body_id[env.objects[object_index(env, name)].name])
 
 
+def object_points(env: Any, obj: Any) -> np.ndarray:
+    """World-frame vertices (N, 3) of a robosuite object's collision geoms (meshes and boxes)."""
+    model, data = env.sim.model._model, env.sim.data._data
+    points = []
+    for name in obj.contact_geoms:
+        gid = env.sim.model.geom_name2id(name)
+        rot = data.geom_xmat[gid].reshape(3, 3)
+        if model.geom_type[gid] == 7:  # mjGEOM_MESH: vertices are in the geom frame
+            mid = model.geom_dataid[gid]
+            start, count = model.mesh_vertadr[mid], model.mesh_vertnum[mid]
+            local = model.mesh_vert[start : start + count]
+        else:  # box-like bounding corners for primitives
+            size = model.geom_size[gid]
+            local = np.array([[sx, sy, sz] for sx in (-1, 1) for sy in (-1, 1) for sz in (-1, 1)]) * size
+        points.append(data.geom_xpos[gid] + local @ rot.T)
+    return np.concatenate(points)
+
+
+def points(env: Any, variation: Variation) -> np.ndarray:
+    """World vertices (N, 3) of the object the variation names (its collision geoms)."""
+    return object_points(env, env.objects[object_index(env, variation.params["object"])])
+
+
 def target(env: Any, variation: Variation) -> np.ndarray:
     """World position of the object the variation names."""
     return np.array(env.sim.data.body_xpos[object_body_id(env, variation.params["object"])], dtype=np.float64)

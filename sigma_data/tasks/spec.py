@@ -20,6 +20,7 @@ if TYPE_CHECKING:
 Bounds = tuple[float, float, float, float, float, float]
 SuccessFn = Callable[[Any, "Variation"], bool]
 TargetFn = Callable[[Any, "Variation"], np.ndarray]
+PointsFn = Callable[[Any, "Variation"], np.ndarray]
 
 
 @dataclass(frozen=True)
@@ -53,7 +54,9 @@ class TaskSpec:
     so voxel grids and orthographic virtual views stay isotropic); robosuite's table top is at z = 0.8.
     ``max_steps`` is the control-step budget of one expert episode (20 steps = 1 s). ``target`` gives, for a
     scene with several objects, where the variation's object is grasped (world xyz, metres): evaluation names the
-    object a policy went for with it (``pipelines/evaluate.py``); None for a task with one object.
+    object a policy went for with it (``pipelines/evaluate.py``); None for a task with one object. ``points`` gives
+    the world vertices (N, 3) of the variation's object, from which evaluation measures how wide the object is
+    across the open fingers and how far off their centre it is at each keyframe; None where not defined.
     """
 
     name: str
@@ -65,6 +68,7 @@ class TaskSpec:
     success: SuccessFn
     max_steps: int
     target: TargetFn | None = None
+    points: PointsFn | None = None
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "env_kwargs", MappingProxyType(dict(self.env_kwargs)))

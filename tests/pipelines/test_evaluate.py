@@ -66,6 +66,17 @@ def test_failure_reasons(trace, reason):
     assert failure_reason(_result(trace), max_keyframes=12) == reason
 
 
+def test_a_missed_grasp_says_how_the_object_sat_between_the_fingers():
+    """From the grasp pose before the close (fingers open), else from the close itself."""
+    fit = {"across_fingers_mm": 92, "off_centre_mm": 4}
+    trace = [_step(1, PREGRASP), _step(2, GRASP) | fit, _step(3, GRASP, 0.0, closed=True, gap=0.002)]
+    reason = failure_reason(_result(trace), 12)
+    assert reason == "grasp missed at keyframe 3 (92 mm across the fingers, 4 mm off centre)"
+    assert _failure_kind(reason) == "grasp missed"
+    trace = [_step(1, PREGRASP), _step(2, GRASP, 0.0, closed=True, gap=0.002) | fit | {"off_centre_mm": 30}]
+    assert failure_reason(_result(trace), 12).endswith("(92 mm across the fingers, 30 mm off centre)")
+
+
 def test_doing_the_other_instruction_is_named_before_the_trace():
     result = _result([_step(1, GRASP, 0.0, closed=True, gap=0.04), _step(2, LIFT, 1.0, opened=True)])
     result.other_variation = "green_on_red"
@@ -165,3 +176,32 @@ def test_the_object_the_hand_went_for_is_named_in_real_robosuite(scene, done_by)
         assert nearest_variation(lift) == {}  # one object: nothing to tell apart
     finally:
         lift.close()
+
+
+def test_how_the_object_sits_between_the_fingers_in_real_robosuite():
+    """The hand driven to the expert's planned grasp of the bread (fingers open): the bread is as wide across the
+    fingers as planned and centred between them; 10 cm above it the pads are not at the object, so nothing."""
+    import numpy as np
+
+    from pipelines.evaluate import grasp_fit
+    from sigma_data.control import grip_site_frame, site_yaw, top_down_quat
+    from sigma_data.experts.pick_place import GRASP_ABOVE_BOTTOM, PALM_CLEARANCE, plan_grasp
+    from sigma_data.sim_env import SigmaRobosuiteEnv
+
+    env = SigmaRobosuiteEnv("pick_place:bread", cameras=("agentview",), image_size=32)
+    try:
+        env.reset(seed=0)
+        pts = env.task.points(env.env, env.variation)
+        grasp_z = max(pts[:, 2].max() - PALM_CLEARANCE, pts[:, 2].min() + GRASP_ABOVE_BOTTOM)
+        band = pts[pts[:, 2] > grasp_z - 0.02]
+        grasp = np.array([*(0.5 * (band[:, :2].max(axis=0) + band[:, :2].min(axis=0))), grasp_z])
+        yaw, width, grasp = plan_grasp(band, site_yaw(grip_site_frame(env.env)[1]), grasp)
+        quat = top_down_quat(yaw)
+        env.step(np.array([*grasp[:2], grasp[2] + 0.1, *quat, 1.0, 0.0]))
+        assert grasp_fit(env, "bread") == {}
+        env.step(np.array([*grasp, *quat, 1.0, 1.0]))
+        fit = grasp_fit(env, "bread")
+        assert abs(fit["across_fingers_mm"] - 1000 * width) < 10
+        assert fit["off_centre_mm"] < 10
+    finally:
+        env.close()
