@@ -9,6 +9,8 @@ land at that instruction's target, nearer to it than to any other instruction's.
 * ``swap_nearest``: share of predictions nearest their own target (1 = follows the language, 1 / variations =
   ignores it);
 * ``swap_trans_cm_median``: median distance from each prediction to its own target;
+* ``swap_went_to``: per instructed variation, how often the prediction landed nearest each variation's target
+  (which object "bread" takes the policy to);
 * ``swap_spread``: how far apart one scene's predictions under its instructions are, over how far apart their
   targets are, median over scenes. 1 = the instruction moves the prediction as far as it moves the target, 0 = the
   same prediction whatever the instruction; so a low ``swap_nearest`` with a high spread is a wrong choice, with a
@@ -20,6 +22,7 @@ checkpoint, and ``benchmarks/bench_identity.py`` probes the same scenes' feature
 
 from __future__ import annotations
 
+from collections import Counter
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -74,10 +77,12 @@ def swap_scenes(dataset: Any, episodes: list[int] | None = None, per_task: int =
 def instruction_swap(policy: Any, pre: Any, dataset: Any, scenes: list[SwapScene]) -> dict[str, Any]:
     """Predict every scene of ``dataset`` under each of its instructions (see the module docstring); overall and,
     with scenes of more than one task, per task (``per_task``: {task: {"swap_scenes", "swap_nearest",
-    "swap_spread"}})."""
+    "swap_spread"}}). ``swap_went_to`` counts, per instructed variation, the variations whose targets the
+    predictions landed nearest: ``{"bread": {"bread": 4, "can": 6}}`` says where "bread" takes the policy."""
     import torch
 
     nearest, errors, tasks, spreads = [], [], [], []
+    went_to: dict[str, Counter] = {}
     for scene in scenes:
         item = dataset[scene.rows[0]]
         obs = {k: v[None] for k, v in item.items() if k.startswith("observation.")}
@@ -87,6 +92,7 @@ def instruction_swap(policy: Any, pre: Any, dataset: Any, scenes: list[SwapScene
                 pos = policy.predict(pre(obs | {"task": [instruction]})).action[0, :3].float().cpu().numpy()
             dist = np.linalg.norm(scene.targets - pos, axis=-1)
             nearest.append(int(np.argmin(dist)) == i)
+            went_to.setdefault(scene.variations[i], Counter())[scene.variations[int(np.argmin(dist))]] += 1
             errors.append(100 * dist[i])
             tasks.append(scene.task)
             predicted.append(pos)
@@ -99,6 +105,7 @@ def instruction_swap(policy: Any, pre: Any, dataset: Any, scenes: list[SwapScene
         "swap_nearest": float(np.mean(nearest)),
         "swap_trans_cm_median": float(np.median(errors)),
         "swap_spread": _median_or_none(spreads),
+        "swap_went_to": {v: dict(sorted(c.items())) for v, c in sorted(went_to.items())},
     }
     if len(set(tasks)) > 1:
         hit, of = np.asarray(nearest), np.asarray(tasks)

@@ -47,6 +47,11 @@ def test_instruction_swap_on_one_scene_under_two_instructions(tmp_path):
     swap = instruction_swap(policy, pre, ds, scenes)
     assert swap["swap_scenes"] == 2 and swap["swap_nearest"] in (0.0, 0.25, 0.5, 0.75, 1.0)
     assert swap["swap_trans_cm_median"] > 0
+    # where each instruction took the policy: one count per scene and instruction, the hits on the diagonal
+    went_to = swap["swap_went_to"]
+    assert sorted(went_to) == sorted(set(scenes[0].variations)) and len(went_to) == 2
+    assert sum(sum(c.values()) for c in went_to.values()) == 4
+    assert sum(c.get(v, 0) for v, c in went_to.items()) == 4 * swap["swap_nearest"]
     # the same scene twice: both tasks score the same, and their mean is the overall share
     per_task = swap["per_task"]
     spread = swap["swap_spread"]
