@@ -146,7 +146,10 @@ def _fit_text(trace: list[dict], i: int) -> str:
     fit = next((trace[j] for j in (i - 1, i) if j >= 0 and "across_fingers_mm" in trace[j]), None)
     if fit is None:
         return ""
-    return f" ({fit['across_fingers_mm']} mm across the fingers, {fit['off_centre_mm']} mm off centre)"
+    return (
+        f" ({fit['across_fingers_mm']} mm across the fingers, {fit['off_centre_mm']} mm off centre,"
+        f" {fit['below_top_mm']} mm below its top)"
+    )
 
 
 def _settled_gap(trace: list[dict], i: int) -> float:
@@ -357,7 +360,9 @@ def grasp_fit(env, variation: str) -> dict[str, int]:
     """How the object of ``variation`` sits between the fingers now, from its vertices (``TaskSpec.points``) above
     the pads' lower edge: ``across_fingers_mm``, its width along the closing axis (more than the open gap, 78 mm
     for the Panda, cannot be grasped at this yaw), and ``off_centre_mm``, how far its middle is from the fingers'
-    midpoint along that axis. ``{}`` for a task without ``points`` or a hand not down at the object.
+    midpoint along that axis, and ``below_top_mm``, how far the grip site is below the object's top (the expert
+    grasps 36 mm below it, the palm's clearance, or 20 mm above the bottom of a short object). ``{}`` for a task
+    without ``points`` or a hand not down at the object.
 
     At the expert's grasp (seed 0) PickPlace's objects are 31-50 mm across the fingers; turned 45° from it the
     cereal box is 93 mm (it no longer fits), the bread 62 mm and the milk carton 56 mm (they still do), the can 50.
@@ -380,6 +385,7 @@ def grasp_fit(env, variation: str) -> dict[str, int]:
     return {
         "across_fingers_mm": round(1000 * float(proj.max() - proj.min())),
         "off_centre_mm": round(1000 * abs(float(middle - site[:2] @ closing))),
+        "below_top_mm": round(1000 * float(pts[:, 2].max() - site[2])),
     }
 
 

@@ -68,13 +68,18 @@ def test_failure_reasons(trace, reason):
 
 def test_a_missed_grasp_says_how_the_object_sat_between_the_fingers():
     """From the grasp pose before the close (fingers open), else from the close itself."""
-    fit = {"across_fingers_mm": 92, "off_centre_mm": 4}
+    fit = {"across_fingers_mm": 92, "off_centre_mm": 4, "below_top_mm": 36}
     trace = [_step(1, PREGRASP), _step(2, GRASP) | fit, _step(3, GRASP, 0.0, closed=True, gap=0.002)]
     reason = failure_reason(_result(trace), 12)
-    assert reason == "grasp missed at keyframe 3 (92 mm across the fingers, 4 mm off centre)"
+    assert (
+        reason
+        == "grasp missed at keyframe 3 (92 mm across the fingers, 4 mm off centre, 36 mm below its top)"
+    )
     assert _failure_kind(reason) == "grasp missed"
     trace = [_step(1, PREGRASP), _step(2, GRASP, 0.0, closed=True, gap=0.002) | fit | {"off_centre_mm": 30}]
-    assert failure_reason(_result(trace), 12).endswith("(92 mm across the fingers, 30 mm off centre)")
+    assert failure_reason(_result(trace), 12).endswith(
+        "(92 mm across the fingers, 30 mm off centre, 36 mm below its top)"
+    )
 
 
 def test_doing_the_other_instruction_is_named_before_the_trace():
@@ -203,5 +208,6 @@ def test_how_the_object_sits_between_the_fingers_in_real_robosuite():
         fit = grasp_fit(env, "bread")
         assert abs(fit["across_fingers_mm"] - 1000 * width) < 10
         assert fit["off_centre_mm"] < 10
+        assert abs(fit["below_top_mm"] - 1000 * (pts[:, 2].max() - grasp[2])) < 10
     finally:
         env.close()
