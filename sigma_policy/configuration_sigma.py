@@ -25,6 +25,8 @@ from the preset in ``__post_init__``; a field given explicitly (CLI or ``config.
 ``yaw_scan_px=24`` (the rotation-equivariant yaw scan), lr 3e-3 and a 6000-step decay. It is the suite benchmark's
 recipe (``benchmarks/bench_suite.py``; RESULTS.md "The suite on 2 CPU cores"): on four tasks ``small``'s lr 1e-2
 underfit with its 2000-step decay and diverged with a longer one, and the scan lifted NutAssembly from 2/80 to 15/80.
+On PickPlace alone (100 demonstrations per variation, 6000 steps) it scored 28/80 against ``small``'s 20/80, and
+``small`` with the scan but lr 1e-2 9/80 (single runs; docs/learning.md "PickPlace: why the grasps miss").
 
 LeRobot's cosine schedule shrinks warm-up and decay to the run's ``--steps`` when the run is shorter than the decay.
 
