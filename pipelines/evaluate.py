@@ -274,6 +274,7 @@ class _Worker:
                 success = bool(info["is_success"])
                 now_open = bool(action[7] > 0.5)
                 fingers = obs["agent_pos"][8:10]
+                near = nearest_variation(env)
                 trace.append(
                     {
                         "keyframe": k,
@@ -283,7 +284,7 @@ class _Worker:
                         "opened_now": now_open and not was_open,
                         "finger_gap_m": round(float(abs(fingers[0]) + abs(fingers[1])), 4),
                     }
-                    | (near := nearest_variation(env))
+                    | near
                     | grasp_fit(env, near.get("nearest", job.variation))
                 )
                 was_open = now_open
@@ -358,11 +359,13 @@ PAD_BELOW_SITE_M = 0.01
 
 def grasp_fit(env, variation: str) -> dict[str, int]:
     """How the object of ``variation`` sits between the fingers now, from its vertices (``TaskSpec.points``) above
-    the pads' lower edge: ``across_fingers_mm``, its width along the closing axis (more than the open gap, 78 mm
-    for the Panda, cannot be grasped at this yaw), and ``off_centre_mm``, how far its middle is from the fingers'
-    midpoint along that axis, and ``below_top_mm``, how far the grip site is below the object's top (the expert
-    grasps 36 mm below it, the palm's clearance, or 20 mm above the bottom of a short object). ``{}`` for a task
-    without ``points`` or a hand not down at the object.
+    the pads' lower edge; ``{}`` for a task without ``points`` or a hand not down at the object:
+
+    * ``across_fingers_mm``: its width along the closing axis (wider than the open gap, 78 mm for the Panda, it
+      cannot be grasped at this yaw);
+    * ``off_centre_mm``: how far its middle is from the fingers' midpoint along that axis;
+    * ``below_top_mm``: how far the grip site is below the object's top (the expert grasps 36 mm below it, the
+      palm's clearance, or 20 mm above the bottom of a short object; near 0 or negative: the hand is on top of it).
 
     At the expert's grasp (seed 0) PickPlace's objects are 31-50 mm across the fingers; turned 45° from it the
     cereal box is 93 mm (it no longer fits), the bread 62 mm and the milk carton 56 mm (they still do), the can 50.
