@@ -255,25 +255,26 @@ def predict_rows(policy: Any, pre: Any, kf: KeyframeSet, batch_size: int) -> tup
     return np.concatenate(preds), np.concatenate(trues)
 
 
-def row_labels(dataset: Any, rows: list[int], key: str) -> np.ndarray | None:
-    """What ``meta/sigma.json`` records under ``key`` (``task``, ``variation``) for the episode of each dataset row
-    ("unknown" where an episode lacks it); None for a dataset sigma did not collect (no sidecar)."""
+def row_labels(
+    dataset: Any, rows: list[int], keys: tuple[str, ...] = ("task", "variation")
+) -> dict[str, np.ndarray] | None:
+    """What ``meta/sigma.json`` records under each of ``keys`` for the episode of each dataset row ("unknown" where
+    an episode lacks it), read once for all keys; None for a dataset sigma did not collect (no sidecar)."""
     from sigma_data.contract import SIDECAR, read_sidecar
 
     root = Path(dataset.root)
     if not (root / SIDECAR).exists():
         return None
-    label_of = {
-        int(e["episode_index"]): str(e.get(key, "unknown")) for e in read_sidecar(root).get("episodes", [])
-    }
+    records = {int(e["episode_index"]): e for e in read_sidecar(root).get("episodes", [])}
     eps = dataset.meta.episodes
-    row_label: dict[int, str] = {}
+    row_episode: dict[int, int] = {}
     for ep in range(len(eps)):
-        label = label_of.get(int(eps["episode_index"][ep]), "unknown")
-        row_label.update(
-            dict.fromkeys(range(int(eps["dataset_from_index"][ep]), int(eps["dataset_to_index"][ep])), label)
+        index = int(eps["episode_index"][ep])
+        row_episode.update(
+            dict.fromkeys(range(int(eps["dataset_from_index"][ep]), int(eps["dataset_to_index"][ep])), index)
         )
-    return np.array([row_label[int(r)] for r in rows])
+    episodes = [row_episode[int(r)] for r in rows]
+    return {key: np.array([str(records.get(e, {}).get(key, "unknown")) for e in episodes]) for key in keys}
 
 
 def summaries(err: dict[str, np.ndarray], steps: np.ndarray) -> dict[str, Any]:
@@ -303,10 +304,10 @@ def diagnose_checkpoint(
         pred, true = predict_rows(policy, pre, kf, batch_size)
         err = action_errors(pred, true)
         out[kf.name] = summaries(err, kf.steps)
-        tasks = row_labels(kf.dataset, kf.indices, "task")
-        if tasks is not None:
+        labels = row_labels(kf.dataset, kf.indices)
+        if labels is not None:
+            tasks, variations = labels["task"], labels["variation"]
             out[kf.name]["per_task"] = split_summaries(err, kf.steps, tasks)
-            variations = row_labels(kf.dataset, kf.indices, "variation")
             if len(set(variations.tolist())) > len(set(tasks.tolist())):  # some task has several variations
                 out[kf.name]["per_variation"] = split_summaries(err, kf.steps, variations)
         if kf.swap:

@@ -373,12 +373,13 @@ def grasp_fit(env, variation: str) -> dict[str, int]:
     import numpy as np
 
     from sigma_data.control import grip_site_frame
+    from sigma_data.suite import get_variation
 
     task = env.task
     if task.points is None:
         return {}
     site, rot = grip_site_frame(env.env)
-    pts = task.points(env.env, next(v for v in task.variations if v.name == variation))
+    pts = task.points(env.env, get_variation(task, variation))
     band = pts[pts[:, 2] > site[2] - PAD_BELOW_SITE_M]
     if len(band) == 0:
         return {}

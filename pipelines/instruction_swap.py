@@ -91,8 +91,9 @@ def instruction_swap(policy: Any, pre: Any, dataset: Any, scenes: list[SwapScene
             with torch.inference_mode():
                 pos = policy.predict(pre(obs | {"task": [instruction]})).action[0, :3].float().cpu().numpy()
             dist = np.linalg.norm(scene.targets - pos, axis=-1)
-            nearest.append(int(np.argmin(dist)) == i)
-            went_to.setdefault(scene.variations[i], Counter())[scene.variations[int(np.argmin(dist))]] += 1
+            landed = int(np.argmin(dist))
+            nearest.append(landed == i)
+            went_to.setdefault(scene.variations[i], Counter())[scene.variations[landed]] += 1
             errors.append(100 * dist[i])
             tasks.append(scene.task)
             predicted.append(pos)

@@ -130,6 +130,18 @@ PAD_HALF_WIDTH = 0.011  # finger pad half extent across the closing axis (m)
 PAD_MARGIN = 0.004  # keep the pads this far inside the object's extent when sliding the grasp
 
 
+def grasp_band(pts: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(the vertices the pads may close on, the grasp point (3,)) of an object's world vertices ``pts``: the grasp
+    height is ``PALM_CLEARANCE`` below the top, at least ``GRASP_ABOVE_BOTTOM`` above the bottom; the band is every
+    vertex from 2 cm below it up, and the grasp point the middle of the band's footprint. :func:`plan_grasp` then
+    chooses the yaw."""
+    top, bottom = pts[:, 2].max(), pts[:, 2].min()
+    grasp_z = max(top - PALM_CLEARANCE, bottom + GRASP_ABOVE_BOTTOM)
+    band = pts[pts[:, 2] > grasp_z - 0.02]
+    centre_xy = 0.5 * (band[:, :2].max(axis=0) + band[:, :2].min(axis=0))
+    return band, np.array([*centre_xy, grasp_z])
+
+
 def plan_grasp(
     points: np.ndarray,
     current_yaw: float,
@@ -232,12 +244,7 @@ def pick_place_expert(recorder: EpisodeRecorder, variation: Variation, rng: np.r
     obj = env.objects[index]
     settle(arm, env.objects)
 
-    pts = object_points(env, obj)
-    top, bottom = pts[:, 2].max(), pts[:, 2].min()
-    grasp_z = max(top - PALM_CLEARANCE, bottom + GRASP_ABOVE_BOTTOM)
-    band = pts[pts[:, 2] > grasp_z - 0.02]
-    centre_xy = 0.5 * (band[:, :2].max(axis=0) + band[:, :2].min(axis=0))
-    grasp = np.array([*centre_xy, grasp_z])
+    band, grasp = grasp_band(object_points(env, obj))
     others = [object_points(env, o) for o in env.objects if o is not obj]
     wrist = float(env.sim.data.qpos[env.robots[0]._ref_joint_pos_indexes[6]])
     yaw, width, grasp = plan_grasp(band, site_yaw(grip_site_frame(env)[1]), grasp, others, wrist)

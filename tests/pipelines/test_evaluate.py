@@ -190,16 +190,14 @@ def test_how_the_object_sits_between_the_fingers_in_real_robosuite():
 
     from pipelines.evaluate import grasp_fit
     from sigma_data.control import grip_site_frame, site_yaw, top_down_quat
-    from sigma_data.experts.pick_place import GRASP_ABOVE_BOTTOM, PALM_CLEARANCE, plan_grasp
+    from sigma_data.experts.pick_place import grasp_band, plan_grasp
     from sigma_data.sim_env import SigmaRobosuiteEnv
 
     env = SigmaRobosuiteEnv("pick_place:bread", cameras=("agentview",), image_size=32)
     try:
         env.reset(seed=0)
         pts = env.task.points(env.env, env.variation)
-        grasp_z = max(pts[:, 2].max() - PALM_CLEARANCE, pts[:, 2].min() + GRASP_ABOVE_BOTTOM)
-        band = pts[pts[:, 2] > grasp_z - 0.02]
-        grasp = np.array([*(0.5 * (band[:, :2].max(axis=0) + band[:, :2].min(axis=0))), grasp_z])
+        band, grasp = grasp_band(pts)
         yaw, width, grasp = plan_grasp(band, site_yaw(grip_site_frame(env.env)[1]), grasp)
         quat = top_down_quat(yaw)
         env.step(np.array([*grasp[:2], grasp[2] + 0.1, *quat, 1.0, 0.0]))
