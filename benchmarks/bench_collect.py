@@ -120,7 +120,7 @@ def run_baseline(cfg: BenchConfig, root: Path) -> dict:
     from robosuite.controllers import load_composite_controller_config
 
     from sigma_data.experts.base import ExpertFailure
-    from sigma_data.suite import CONTROL_FREQ, CONTROLLER, ROBOT, get_task, reset_env
+    from sigma_data.suite import CONTROL_FREQ, CONTROLLER, ROBOT, close_env, get_task, reset_env
     from sigma_data.writers import DatasetLayout, DenseWriter, depth_encoder_config
 
     cams = tuple(c for c in cfg.cameras.split(","))
@@ -178,7 +178,7 @@ def run_baseline(cfg: BenchConfig, root: Path) -> dict:
         t0 = time.perf_counter()
         dataset.finalize()
         write_s += time.perf_counter() - t0
-        env.close()
+        close_env(env)
     wall = time.perf_counter() - start
     return {"wall": wall, "kept": kept, "steps": steps, "write_s": write_s}
 

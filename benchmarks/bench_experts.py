@@ -31,7 +31,7 @@ from pipelines.evaluate import wilson_interval
 from sigma_data.control import EnvDriver, KeyframeExecutor
 from sigma_data.experts.base import ExpertFailure
 from sigma_data.mujoco_gl import quiet_robosuite
-from sigma_data.suite import TASKS, get_task, get_variation, make_env, reset_env
+from sigma_data.suite import TASKS, close_env, get_task, get_variation, make_env, reset_env
 from sigma_data.tasks.spec import TaskSpec, Variation
 
 
@@ -131,7 +131,7 @@ def run_variation(task_name: str, variation_name: str, seeds: list[int], replay:
                 else:
                     report.replay_failed_seeds.append(seed)
     finally:
-        env.close()
+        close_env(env)
     report.seconds = time.perf_counter() - start
     return report
 

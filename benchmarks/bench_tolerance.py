@@ -35,7 +35,7 @@ from benchmarks.report import write_report
 from pipelines.evaluate import wilson_interval
 from sigma_data.control import EnvDriver, KeyframeExecutor
 from sigma_data.mujoco_gl import quiet_robosuite
-from sigma_data.suite import get_task, get_variation, make_env, reset_env
+from sigma_data.suite import close_env, get_task, get_variation, make_env, reset_env
 
 
 @dataclass
@@ -106,7 +106,7 @@ def run_variation(
                 KeyframeExecutor(EnvDriver(env)).execute_all(perturb(keyframes, cm, deg, rng))
                 results[condition_name(cm, deg)].append(bool(task.success(env, variation)))
     finally:
-        env.close()
+        close_env(env)
     outcome["replays"] = {name: {"successes": sum(r), "episodes": len(r)} for name, r in results.items()}
     outcome["seconds"] = round(time.perf_counter() - start, 1)
     return outcome

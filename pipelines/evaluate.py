@@ -146,9 +146,10 @@ def _fit_text(trace: list[dict], i: int) -> str:
     fit = next((trace[j] for j in (i - 1, i) if j >= 0 and "across_fingers_mm" in trace[j]), None)
     if fit is None:
         return ""
+    ridge = f", closing {fit['ridge_deg']}° off its ridge" if "ridge_deg" in fit else ""
     return (
         f" ({fit['across_fingers_mm']} mm across the fingers, {fit['off_centre_mm']} mm off centre,"
-        f" {fit['below_top_mm']} mm below its top)"
+        f" {fit['below_top_mm']} mm below its top{ridge})"
     )
 
 
@@ -227,6 +228,11 @@ class _Worker:
     def _image_size(self) -> int:
         feature = self.policy.config.input_features[self.policy.config.camera_keys(self.cameras[0])["rgb"]]
         return int(feature.shape[-1])
+
+    def close(self) -> None:
+        """Close the cached envs (each frees its render context in its own GL context)."""
+        while self.envs:
+            self.envs.popitem()[1].close()
 
     def env(self, task: str, variation: str):
         from sigma_data.sim_env import SigmaRobosuiteEnv
@@ -365,7 +371,9 @@ def grasp_fit(env, variation: str) -> dict[str, int]:
       cannot be grasped at this yaw);
     * ``off_centre_mm``: how far its middle is from the fingers' midpoint along that axis;
     * ``below_top_mm``: how far the grip site is below the object's top (the expert grasps 36 mm below it, the
-      palm's clearance, or 20 mm above the bottom of a short object; near 0 or negative: the hand is on top of it).
+      palm's clearance, or 20 mm above the bottom of a short object; near 0 or negative: the hand is on top of it);
+    * ``ridge_deg``, only for an object with a ridge on top (the milk carton's gable): the angle between the
+      closing axis and the ridge, 0-90 (the expert closes along it, within 12°, onto the vertical gable ends).
 
     At the expert's grasp (seed 0) PickPlace's objects are 31-50 mm across the fingers; turned 45° from it the
     cereal box is 93 mm (it no longer fits), the bread 62 mm and the milk carton 56 mm (they still do), the can 50.
@@ -374,6 +382,7 @@ def grasp_fit(env, variation: str) -> dict[str, int]:
 
     from sigma_data.control import grip_site_frame
     from sigma_data.suite import get_variation
+    from sigma_data.tasks.pick_place import ridge_direction
 
     task = env.task
     if task.points is None:
@@ -386,11 +395,15 @@ def grasp_fit(env, variation: str) -> dict[str, int]:
     closing = rot[:2, 0] / np.linalg.norm(rot[:2, 0])  # the site's x axis points from one finger to the other
     proj = band[:, :2] @ closing
     middle = 0.5 * (proj.max() + proj.min())
-    return {
+    fit = {
         "across_fingers_mm": round(1000 * float(proj.max() - proj.min())),
         "off_centre_mm": round(1000 * abs(float(middle - site[:2] @ closing))),
         "below_top_mm": round(1000 * float(pts[:, 2].max() - site[2])),
     }
+    ridge = ridge_direction(pts)
+    if ridge is not None:
+        fit["ridge_deg"] = round(float(np.degrees(np.arccos(min(1.0, abs(float(closing @ ridge)))))))
+    return fit
 
 
 def other_variation_done(env) -> str | None:
@@ -420,6 +433,9 @@ def _init_worker(cfg: EvalConfig) -> None:
     # it from the first job instead, which ends the evaluation with that error.
     global _WORKER, _WORKER_ERROR
     logging.basicConfig(level=logging.WARNING)
+    if _WORKER is not None:  # a second evaluation in this process (workers=1): the last one's envs go first
+        _WORKER.close()
+        _WORKER = None
     try:
         _WORKER = _Worker(cfg)
     except Exception as e:

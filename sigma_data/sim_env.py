@@ -28,6 +28,7 @@ uses: the one named at construction, else ``variations[seed % n]`` (deterministi
 
 from __future__ import annotations
 
+import contextlib
 from collections.abc import Sequence
 from typing import Any, ClassVar
 
@@ -38,7 +39,7 @@ from sigma_data.cameras import DEFAULT_CAMERAS, CameraRig, RenderConfig
 from sigma_data.contract import ACTION_NAMES
 from sigma_data.control import EnvDriver, ExecutorConfig, KeyframeExecutor
 from sigma_data.record import robot_state
-from sigma_data.suite import TaskSpec, get_task, get_variation, make_env, reset_env
+from sigma_data.suite import TaskSpec, close_env, get_task, get_variation, make_env, reset_env
 
 GYM_ID = "sigma/Robosuite-v0"
 DEPTH_SCALE = {"m": 1.0, "mm": 1000.0}  # rendered metres -> the unit handed to the policy
@@ -174,7 +175,14 @@ class SigmaRobosuiteEnv(gym.Env):
         return self._last_rgb
 
     def close(self) -> None:
-        self.env.close()
+        if self.env is not None:
+            close_env(self.env)
+            self.env = None
+
+    def __del__(self) -> None:
+        # Dropped without close(): robosuite would free the render context in another env's GL context.
+        with contextlib.suppress(Exception):
+            self.close()
 
 
 def register_gym_env() -> None:

@@ -241,11 +241,30 @@ def make_env(
     known = set(env.sim.model.camera_names)
     unknown = [c for c in cameras if c not in known]
     if unknown:
-        env.close()
+        close_env(env)
         raise ValueError(
             f"unknown camera(s) {unknown} for task '{task.name}' ({task.env_name}); known: {', '.join(sorted(known))}"
         )
     return env
+
+
+def close_env(env: Any) -> None:
+    """Close a robosuite env made by :func:`make_env`; close every env this way, never with ``env.close()`` alone.
+
+    robosuite frees an env's offscreen render context (its MuJoCo textures and framebuffers) in whichever OpenGL
+    context is current when the context is collected. GL object names are numbered per context, so when another
+    env's context is current, or a reference (a :class:`~sigma_data.cameras.CameraRig`) keeps the context alive
+    until a later env renders, that frees the *other* env's objects under the same names, and it renders garbage
+    (measured: an env made after another was closed rendered noise and font glyphs). Here the context is freed
+    first, inside its own GL context; robosuite's later free finds nothing left.
+    """
+    sim = getattr(env, "sim", None)
+    ctx = getattr(sim, "_render_context_offscreen", None)
+    if ctx is not None and getattr(ctx, "gl_ctx", None) is not None:
+        ctx.gl_ctx.make_current()
+        ctx.con.free()
+        ctx.gl_ctx.free()
+    env.close()
 
 
 def reset_env(env: Any, task: TaskSpec, variation: Variation, seed: int) -> None:

@@ -65,6 +65,8 @@ def test_pins_that_robosuite_needs():
 def lift_env():
     import robosuite
 
+    from sigma_data.suite import close_env
+
     env = robosuite.make(
         "Lift",
         robots="Panda",
@@ -79,7 +81,7 @@ def lift_env():
     )
     env.reset()
     yield env
-    env.close()
+    close_env(env)
 
 
 def test_robosuite_lift_renders_upright_rgb_and_metric_depth(lift_env):

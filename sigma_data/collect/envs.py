@@ -55,6 +55,8 @@ def cached_replay(rig: CameraRig, threads: int) -> ReplayRenderer:
 
 def close_envs() -> None:
     """Close and forget every env :func:`cached_env` built in this process (and their render threads)."""
+    from sigma_data.suite import close_env
+
     while _REPLAYS:
         _, replay = _REPLAYS.popitem()
         with contextlib.suppress(Exception):
@@ -62,14 +64,14 @@ def close_envs() -> None:
     while _ENVS:
         _, env = _ENVS.popitem()
         with contextlib.suppress(Exception):
-            env.close()
+            close_env(env)
 
 
 def check_cameras_exist(cfg: CollectConfig, task_names: list[str], reuse: bool) -> None:
     """Raise ``ValueError`` naming the first task whose scene lacks a requested camera, before any shard runs
     (or, for worker processes, while they start). With ``reuse`` the envs the shards of this process will use
     are built now (nothing extra); otherwise a throwaway env without a renderer is built per task."""
-    from sigma_data.suite import get_task
+    from sigma_data.suite import close_env, get_task
 
     for task_name in task_names:
         if reuse:
@@ -80,7 +82,7 @@ def check_cameras_exist(cfg: CollectConfig, task_names: list[str], reuse: bool) 
             try:
                 known = set(env.sim.model.camera_names)
             finally:
-                env.close()
+                close_env(env)
         unknown = [c for c in cfg.render.config().cameras if c not in known]
         if unknown:
             raise ValueError(

@@ -24,7 +24,7 @@ import numpy as np
 
 from sigma_data.control import grip_site_frame, site_yaw, top_down_quat, wrap_angle
 from sigma_data.experts.base import EpisodeRecorder, ExpertFailure, WaypointArm, check_grasp
-from sigma_data.tasks.pick_place import object_index, object_points
+from sigma_data.tasks.pick_place import object_index, object_points, ridge_direction
 
 if TYPE_CHECKING:
     from sigma_data.tasks.spec import Variation
@@ -111,16 +111,6 @@ def blocked_samples(yaw: float, grasp: np.ndarray, obstacles: Sequence[Obstacle]
         outside = (xy[:, 0] < x0) | (xy[:, 0] > x1) | (xy[:, 1] < y0) | (xy[:, 1] > y1)
         hit |= outside & (z < WALL_TOP)
     return int(hit.sum())
-
-
-def ridge_direction(points: np.ndarray, depth: float = 0.005) -> np.ndarray | None:
-    """Unit xy direction of a ridge on top of the object (top ``depth`` slice twice as long as wide), else None."""
-    top = points[points[:, 2] >= points[:, 2].max() - depth][:, :2]
-    if len(top) < 3:
-        return None
-    centred = top - top.mean(axis=0)
-    evals, evecs = np.linalg.eigh(centred.T @ centred / len(top))
-    return evecs[:, 1] if evals[1] > 4 * max(evals[0], 1e-12) else None
 
 
 # Joint 7 at the grasp (rad, range +-2.9): carrying the object to bin2 turns it by +0.4..+1.3 rad more.

@@ -427,6 +427,8 @@ def import_hdf5(cfg: Hdf5ImportConfig) -> ImportSummary:
     """Convert the demos of ``cfg.path`` into the datasets under ``cfg.output.dir``; returns the summary."""
     from tqdm import tqdm
 
+    from sigma_data.suite import close_env
+
     if cfg.path is None:
         raise ValueError("--path is required (the .hdf5 file to import)")
     if cfg.max_episodes is not None and cfg.max_episodes < 1:
@@ -467,5 +469,5 @@ def import_hdf5(cfg: Hdf5ImportConfig) -> ImportSummary:
                         )
                         sink.fail(f"{path}: {name}", error)
         finally:
-            env.close()
+            close_env(env)
     return sink.summary

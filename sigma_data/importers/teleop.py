@@ -368,7 +368,7 @@ def record_teleop(
 ) -> tuple[ImportSummary, list[EpisodeOutcome]]:
     """Run a teleoperation session and write the kept episodes; devices default to ``cfg.device`` + keys."""
     from sigma_data.replay_render import RenderedFrames
-    from sigma_data.suite import get_task, get_variation, make_env
+    from sigma_data.suite import close_env, get_task, get_variation, make_env
 
     task = get_task(cfg.task)
     variation = get_variation(task, cfg.variation) if cfg.variation else task.variations[0]
@@ -408,5 +408,5 @@ def record_teleop(
     finally:
         if key_events is not None:
             key_events.stop()
-        env.close()
+        close_env(env)
     return sink.summary, outcomes

@@ -80,6 +80,10 @@ def test_a_missed_grasp_says_how_the_object_sat_between_the_fingers():
     assert failure_reason(_result(trace), 12).endswith(
         "(92 mm across the fingers, 30 mm off centre, 36 mm below its top)"
     )
+    trace[-1] |= {"ridge_deg": 80}
+    assert failure_reason(_result(trace), 12).endswith(
+        "(92 mm across the fingers, 30 mm off centre, 36 mm below its top, closing 80° off its ridge)"
+    )
 
 
 def test_doing_the_other_instruction_is_named_before_the_trace():
@@ -207,5 +211,29 @@ def test_how_the_object_sits_between_the_fingers_in_real_robosuite():
         assert abs(fit["across_fingers_mm"] - 1000 * width) < 10
         assert fit["off_centre_mm"] < 10
         assert abs(fit["below_top_mm"] - 1000 * (pts[:, 2].max() - grasp[2])) < 10
+        assert "ridge_deg" not in fit  # the bread's top has no ridge
+    finally:
+        env.close()
+
+
+def test_the_milk_cartons_ridge_against_the_closing_axis_in_real_robosuite():
+    """At the expert's planned milk grasp the fingers close along the gable's ridge (within 12°); turned a quarter
+    turn they close across it."""
+    import numpy as np
+
+    from pipelines.evaluate import grasp_fit
+    from sigma_data.control import grip_site_frame, site_yaw, top_down_quat
+    from sigma_data.experts.pick_place import grasp_band, plan_grasp
+    from sigma_data.sim_env import SigmaRobosuiteEnv
+
+    env = SigmaRobosuiteEnv("pick_place:milk", cameras=("agentview",), image_size=32)
+    try:
+        env.reset(seed=0)
+        band, grasp = grasp_band(env.task.points(env.env, env.variation))
+        yaw, _, grasp = plan_grasp(band, site_yaw(grip_site_frame(env.env)[1]), grasp)
+        for turn, (low, high) in ((0.0, (0, 14)), (np.pi / 2, (76, 90))):
+            env.step(np.array([*grasp[:2], grasp[2] + 0.1, *top_down_quat(yaw + turn), 1.0, 0.0]))
+            env.step(np.array([*grasp, *top_down_quat(yaw + turn), 1.0, 1.0]))
+            assert low <= grasp_fit(env, "milk")["ridge_deg"] <= high, turn
     finally:
         env.close()

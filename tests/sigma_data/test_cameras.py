@@ -13,7 +13,7 @@ from sigma_data.cameras import (
     parse_cameras,
 )
 from sigma_data.record import EpisodeRecorder
-from sigma_data.suite import get_task, make_env, reset_env
+from sigma_data.suite import close_env, get_task, make_env, reset_env
 
 SIZE = 96
 
@@ -25,7 +25,7 @@ def scene():
     reset_env(env, task, task.variations[0], seed=2)
     rig = CameraRig(env, RenderConfig(DEFAULT_CAMERAS, SIZE, SIZE))
     yield env, rig
-    env.close()
+    close_env(env)
 
 
 def cube_points_error(env, cloud: np.ndarray) -> tuple[np.ndarray, int]:

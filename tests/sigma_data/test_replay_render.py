@@ -7,7 +7,7 @@ import pytest
 from sigma_data.cameras import DEFAULT_CAMERAS, CameraRig, RenderConfig
 from sigma_data.record import EpisodeRecorder
 from sigma_data.replay_render import RenderedFrames, ReplayRenderer
-from sigma_data.suite import get_task, make_env, reset_env
+from sigma_data.suite import close_env, get_task, make_env, reset_env
 
 SIZE = 64
 
@@ -36,7 +36,7 @@ def lift():
     rig = CameraRig(env, RenderConfig(DEFAULT_CAMERAS, SIZE, SIZE))
     with ReplayRenderer(rig, threads=2) as replay:
         yield task, env, rig, replay
-    env.close()
+    close_env(env)
 
 
 def test_threads_render_what_the_rig_renders_bit_for_bit(lift):
@@ -70,7 +70,7 @@ def test_the_snapshot_keeps_the_episode_scene_after_the_env_moves_on():
                 for t in range(len(ep)):
                     assert_same_views(frames(t), expected[t], f"door frame {t}")
     finally:
-        env.close()
+        close_env(env)
 
 
 def test_close_cancels_what_was_not_asked_for(lift):

@@ -156,3 +156,61 @@ def test_dense_lerobot_env_config_has_the_dense_dataset_features():
     assert keyframe.features["action"].shape == (9,) and keyframe.episode_length == 10 and keyframe.fps == 2
     with pytest.raises(ValueError, match="control must be one of"):
         EnvConfig.get_choice_class("sigma_robosuite")(control="joint")
+
+
+def test_an_env_made_after_another_was_closed_renders_the_same_scene():
+    """robosuite frees a closed env's render context when the context is collected, in whichever GL context is
+    current then: the old env, dropped once its successor existed (``env = SigmaRobosuiteEnv(...)`` again), deleted
+    the new env's textures and framebuffers, which then rendered noise. ``close`` frees it in its own context."""
+    import gc
+
+    env = SigmaRobosuiteEnv("lift", cameras=CAMS, image_size=32)
+    first = env.reset(seed=0)[0]
+    env.close()
+    env = SigmaRobosuiteEnv("lift", cameras=CAMS, image_size=32)  # the closed env is dropped only now
+    try:
+        gc.collect()
+        second = env.reset(seed=0)[0]
+    finally:
+        env.close()
+    for cam in CAMS:
+        np.testing.assert_array_equal(first["pixels"][cam], second["pixels"][cam], err_msg=cam)
+        np.testing.assert_array_equal(
+            first[f"images.{cam}_depth"], second[f"images.{cam}_depth"], err_msg=cam
+        )
+
+
+def test_closing_one_env_leaves_another_live_envs_rendering_intact():
+    """Two envs alive, the second renders, then the first is closed and collected: the second renders the same."""
+    import gc
+
+    a = SigmaRobosuiteEnv("lift", cameras=CAMS, image_size=32)
+    b = SigmaRobosuiteEnv("lift", cameras=CAMS, image_size=32)
+    try:
+        a.reset(seed=0)
+        before = b.reset(seed=1)[0]
+        a.close()
+        del a
+        gc.collect()
+        after = b.reset(seed=1)[0]
+        for cam in CAMS:
+            np.testing.assert_array_equal(before["pixels"][cam], after["pixels"][cam], err_msg=cam)
+    finally:
+        b.close()
+
+
+def test_an_env_dropped_without_close_leaves_another_live_envs_rendering_intact():
+    import gc
+
+    a = SigmaRobosuiteEnv("lift", cameras=CAMS, image_size=32)
+    b = SigmaRobosuiteEnv("lift", cameras=CAMS, image_size=32)
+    try:
+        a.reset(seed=0)
+        before = b.reset(seed=1)[0]
+        del a
+        gc.collect()
+        np.testing.assert_array_equal(
+            before["pixels"]["agentview"], b.reset(seed=1)[0]["pixels"]["agentview"]
+        )
+    finally:
+        b.close()

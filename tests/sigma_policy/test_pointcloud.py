@@ -83,6 +83,8 @@ def lift_frame() -> dict:
     import robosuite
     from robosuite.utils import camera_utils as cu
 
+    from sigma_data.suite import close_env
+
     np.random.seed(0)  # robosuite draws the cube placement from the global numpy RNG
     env = robosuite.make(
         "Lift", robots="Panda", has_renderer=False, has_offscreen_renderer=True, use_camera_obs=False,
@@ -106,7 +108,7 @@ def lift_frame() -> dict:
     frame["cube_pos"] = torch.from_numpy(np.array(sim.data.body_xpos[env.cube_body_id])).float()
     frame["cube_rot"] = torch.from_numpy(np.array(sim.data.body_xmat[env.cube_body_id]).reshape(3, 3)).float()
     frame["cube_half"] = torch.tensor(np.asarray(env.cube.size, dtype=np.float32))
-    env.close()
+    close_env(env)
     return {k: torch.stack(v) if isinstance(v, list) else v for k, v in frame.items()}
 
 
