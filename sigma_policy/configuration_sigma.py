@@ -247,6 +247,10 @@ class SigmaConfig(PreTrainedConfig):
     # Channels of the heads' local encoder (network.LocalEncoder: full-resolution dilated convolutions pooled at
     # the keyframe position); 0 = off. None = from preset.
     local_channels: int | None = None
+    # 3x3 convolutions after the 1x1 input convolution (network.NetworkConfig.stem_layers): each pixel's features
+    # then describe its neighbourhood (an object's outline and height profile), for the patch embedding and the
+    # decoder's skip. 0 = off (the paper).
+    stem_layers: int = 0
     # Rotation-equivariant yaw scores (sigma_policy/yaw_scan.py): side (pixels) of the top-view crop around the
     # keyframe position that is turned to every yaw bin and scored by one CNN (0 = off); its channels; the training
     # jitter (pixels, uniform per axis) of the crop's centre about the target's projection, standing in for the
