@@ -372,8 +372,9 @@ def grasp_fit(env, variation: str) -> dict[str, int]:
     * ``off_centre_mm``: how far its middle is from the fingers' midpoint along that axis;
     * ``below_top_mm``: how far the grip site is below the object's top (the expert grasps 36 mm below it, the
       palm's clearance, or 20 mm above the bottom of a short object; near 0 or negative: the hand is on top of it);
-    * ``ridge_deg``, only for an object with a ridge on top (the milk carton's gable): the angle between the
-      closing axis and the ridge, 0-90 (the expert closes along it, within 12°, onto the vertical gable ends).
+    * ``ridge_deg``, only for an object whose top is elongated (the milk carton's gable ridge; the long axis of the
+      cereal box's top): the angle between the closing axis and it, 0-90 (the expert closes along the carton's
+      ridge, within 12°, onto the vertical gable ends).
 
     At the expert's grasp (seed 0) PickPlace's objects are 31-50 mm across the fingers; turned 45° from it the
     cereal box is 93 mm (it no longer fits), the bread 62 mm and the milk carton 56 mm (they still do), the can 50.
