@@ -251,6 +251,10 @@ class SigmaConfig(PreTrainedConfig):
     # then describe its neighbourhood (an object's outline and height profile), for the patch embedding and the
     # decoder's skip. 0 = off (the paper).
     stem_layers: int = 0
+    # Side views tilted down by this many degrees (sigma_policy/views.py), so that they see over a container's rim,
+    # e.g. PickPlace's bins, whose walls hide the bread and the can from horizontal views (docs/learning.md). 0 =
+    # RVT's horizontal side views (every preset).
+    side_tilt_deg: float = 0.0
     # Rotation-equivariant yaw scores (sigma_policy/yaw_scan.py): side (pixels) of the top-view crop around the
     # keyframe position that is turned to every yaw bin and scored by one CNN (0 = off); its channels; the training
     # jitter (pixels, uniform per axis) of the crop's centre about the target's projection, standing in for the

@@ -16,16 +16,23 @@ for the ``small`` preset's 64² views of a 0.6 m box). Each axis is seen by two 
 along that axis, through the argmax voxel, the score profile ``p(k)`` within ``refine_px`` voxels is reduced to its
 centroid offset ``sum(k p) / sum(p)`` (profile minus its window minimum, so a flat background does not pull the
 estimate to the window centre), and the two estimates are averaged.
+
+Tilted side views (``side_tilt_deg`` > 0, sigma_policy/views.py): a side view's rows then read a mix of ``z`` and
+the view's depth coordinate, so the score no longer splits into view pairs, and voxel centres no longer land on
+pixel centres. Every voxel centre is projected instead (:func:`~sigma_policy.views.project_points`) and reads the
+pixel it falls in, ``chunk`` x-slices at a time; the refinement takes the same centroid of the summed score along
+each axis through the argmax voxel.
 """
 
 from __future__ import annotations
 
+import functools
 import math
 
 import torch
 from torch import Tensor
 
-from sigma_policy.renderer import VIEW_AXES
+from sigma_policy.views import VIEW_AXES, project_points, tilt_slope
 
 __all__ = ["gaussian_heatmaps", "heatmap_to_cube_point", "voxel_centres"]
 
@@ -82,15 +89,19 @@ def _centroid_offset(profile: Tensor, centre: Tensor, radius: int) -> Tensor:
     return torch.where(total > 0, (vals * offsets).sum(1) / total.clamp_min(1e-12), 0)
 
 
-def heatmap_to_cube_point(logits: Tensor, img_size: int, chunk: int = 16, refine_px: int = 0) -> Tensor:
+def heatmap_to_cube_point(
+    logits: Tensor, img_size: int, chunk: int = 16, refine_px: int = 0, side_tilt_deg: float = 0.0
+) -> Tensor:
     """Factorised argmax of the mean per-view softmax over the ``S^3`` voxel grid: logits ``(B, V, H, W)`` ->
     cube point ``(B, 3)``: the argmax voxel centre, refined below a voxel when ``refine_px > 0`` (module
-    docstring). ``chunk`` x-slices are scored at a time."""
+    docstring). ``chunk`` x-slices are scored at a time; ``side_tilt_deg`` is the views' tilt."""
     B, V, H, W = logits.shape
     S = img_size
     if (len(VIEW_AXES), S, S) != (V, H, W):
         raise ValueError(f"logits must be (B, {len(VIEW_AXES)}, {S}, {S}), got {tuple(logits.shape)}")
     prob = torch.softmax(logits.float().flatten(2), dim=-1).view(B, V, S, S)
+    if tilt_slope(side_tilt_deg) > 0.0:
+        return _projected_grid_point(prob, chunk, refine_px, side_tilt_deg)
     pair_sum: dict[tuple[int, int], Tensor] = {}
     for view in range(V):
         score, axes = _view_score(prob[:, view], view, S)
@@ -124,3 +135,52 @@ def heatmap_to_cube_point(logits: Tensor, img_size: int, chunk: int = 16, refine
         [sum(_centroid_offset(p, k, refine_px) for p, k in pair) / 2 for pair in profiles], dim=-1
     )
     return point + shift * (2 / S)  # one voxel is 2 / S in cube coordinates
+
+
+@functools.lru_cache(maxsize=4)
+def _voxel_taps(S: int, side_tilt_deg: float, device: torch.device) -> tuple[Tensor, Tensor, Tensor]:
+    """Where every voxel centre ``(S^3,)``, x-major, reads each view ``(V, S^3)``: the flat indices of the two
+    pixels in its column that straddle its projection, and the weight of the second (linear interpolation along
+    the rows; a voxel centre lands on a pixel centre in columns, and in rows too when a view is not tilted)."""
+    g = voxel_centres(S, device)
+    grid = torch.stack(torch.meshgrid(g, g, g, indexing="ij"), -1).reshape(1, -1, 3)
+    uv = project_points(grid, S, side_tilt_deg)[0][0].permute(1, 0, 2)  # (V, S^3, 2)
+    col = uv[..., 0].floor().long().clamp(0, S - 1)
+    row = (uv[..., 1] - 0.5).clamp(0, S - 1)
+    r0 = row.floor().long().clamp(max=S - 2)
+    return r0 * S + col, (r0 + 1) * S + col, row - r0
+
+
+def _projected_grid_point(prob: Tensor, chunk: int, refine_px: int, side_tilt_deg: float) -> Tensor:
+    """:func:`heatmap_to_cube_point` for tilted side views: every voxel centre projected (module docstring)."""
+    B, S = prob.shape[0], prob.shape[-1]
+    idx0, idx1, w = _voxel_taps(S, float(side_tilt_deg), prob.device)
+    flat = prob.flatten(2)
+
+    def score(voxels: Tensor) -> Tensor:
+        """Summed interpolated probability ``(B, M)`` of flat voxel indices ``(M,)``, or ``(B, M)`` per sample."""
+        if voxels.ndim == 1:
+            i0, i1, ww = (t[:, voxels].expand(B, -1, -1) for t in (idx0, idx1, w))
+        else:
+            i0, i1, ww = (t[:, voxels].transpose(0, 1) for t in (idx0, idx1, w))
+        lo, hi = flat.gather(2, i0), flat.gather(2, i1)
+        return (lo + (hi - lo) * ww).sum(1)
+
+    best_val = torch.full((B,), -math.inf, device=prob.device)
+    best_idx = torch.zeros(B, dtype=torch.long, device=prob.device)
+    for a0 in range(0, S, chunk):
+        voxels = torch.arange(a0 * S * S, min(S, a0 + chunk) * S * S, device=prob.device)
+        val, idx = score(voxels).max(1)
+        better = val > best_val
+        best_val = torch.where(better, val, best_val)
+        best_idx = torch.where(better, idx + a0 * S * S, best_idx)
+    cell = torch.stack([best_idx // (S * S), best_idx // S % S, best_idx % S], -1)  # (B, 3) voxel indices
+    point = voxel_centres(S, prob.device)[cell]
+    if refine_px <= 0:
+        return point
+    steps = torch.arange(S, device=prob.device)
+    shifts = []
+    for axis, stride in enumerate((S * S, S, 1)):  # the summed score along each axis through the argmax voxel
+        line = (best_idx - cell[:, axis] * stride)[:, None] + steps * stride  # (B, S) flat voxel indices
+        shifts.append(_centroid_offset(score(line), cell[:, axis], refine_px))
+    return point + torch.stack(shifts, -1) * (2 / S)

@@ -117,7 +117,9 @@ class SigmaPolicy(PreTrainedPolicy):
             self.text_encoder.sentence_dim,
             self.text_encoder.max_length,
         )
-        self.renderer = VirtualViewRenderer(img_size=config.img_size, radius_px=config.render_radius_px)
+        self.renderer = VirtualViewRenderer(
+            img_size=config.img_size, radius_px=config.render_radius_px, side_tilt_deg=config.side_tilt_deg
+        )
         self.register_buffer(
             "scene_bounds", torch.tensor(config.scene_bounds, dtype=torch.float32), persistent=False
         )
@@ -317,7 +319,9 @@ class SigmaPolicy(PreTrainedPolicy):
         views = self._render(cloud.points, cloud.colors, bounds)
         out = self._run_network(views, tasks, batch, bounds)
         trans = out.trans.float()
-        point_cube = heatmap_to_cube_point(trans, cfg.img_size, refine_px=cfg.heatmap_refine_px)
+        point_cube = heatmap_to_cube_point(
+            trans, cfg.img_size, refine_px=cfg.heatmap_refine_px, side_tilt_deg=cfg.side_tilt_deg
+        )
         point_world = cube_to_world(point_cube, bounds)
         rot_bins = out.rot_logits.argmax(-1)
         quat = bins_to_quat(rot_bins, cfg.num_rotation_bins)

@@ -42,7 +42,7 @@ from torch import Tensor, nn
 
 from sigma_policy.heatmap import gaussian_heatmaps, heatmap_to_cube_point
 from sigma_policy.layers import LRELU_SLOPE, ConvBlock, DenseBlock
-from sigma_policy.renderer import project_points
+from sigma_policy.views import project_points, tilt_slope
 from sigma_policy.yaw_scan import YawScanner
 
 
@@ -102,6 +102,10 @@ class NetworkConfig:
     # the scores to the yaw logits.
     yaw_scan_px: int = 0
     yaw_scan_channels: int = 16
+    # Side views tilted down by this angle (not in the paper; sigma_policy/views.py), so they see over a container's
+    # rim: the network only needs it to back-project its own heatmaps at inference (the local features' pooling and
+    # the yaw scan's crop centre). 0 = RVT's horizontal side views.
+    side_tilt_deg: float = 0.0
     logit_scale_init: float = math.log(1 / 0.07)
     channels_last: bool = False  # NHWC conv activations: the layout tensor-core convolutions want on GPUs
 
@@ -116,6 +120,7 @@ class NetworkConfig:
             raise ValueError(f"num_queries must be >= 1, got {self.num_queries}")
         if self.stem_layers < 0:
             raise ValueError(f"stem_layers must be >= 0, got {self.stem_layers}")
+        tilt_slope(self.side_tilt_deg)  # 0 <= angle < 90
         if self.local_channels < 0 or (self.local_channels and not self.local_dilations):
             raise ValueError("local_channels must be >= 0, with at least one dilation when > 0")
         if self.yaw_scan_px < 0 or (self.yaw_scan_px and (self.yaw_scan_px % 2 or self.yaw_scan_px < 8)):
@@ -268,18 +273,18 @@ class LocalEncoder(nn.Sequential):
         )
 
 
-def predicted_uv(logits: Tensor) -> Tensor:
+def predicted_uv(logits: Tensor, side_tilt_deg: float = 0.0) -> Tensor:
     """Pixel coordinates ``(B, V, 2)`` of the projections of the 3D point the translation logits ``(B, V, H, W)``
     predict (:func:`~sigma_policy.heatmap.heatmap_to_cube_point`): the views agree on one point, as the training
     target's projections do, even where one view's own peak lies elsewhere."""
     size = logits.shape[-1]
-    point = heatmap_to_cube_point(logits, size)
-    return project_points(point[:, None].to(logits.dtype), size)[0][:, 0]
+    point = heatmap_to_cube_point(logits, size, side_tilt_deg=side_tilt_deg)
+    return project_points(point[:, None].to(logits.dtype), size, side_tilt_deg)[0][:, 0]
 
 
-def point_heatmaps(logits: Tensor, sigma: float) -> Tensor:
+def point_heatmaps(logits: Tensor, sigma: float, side_tilt_deg: float = 0.0) -> Tensor:
     """Gaussians ``(B, V, H, W)`` of width ``sigma`` pixels at :func:`predicted_uv`."""
-    return gaussian_heatmaps(predicted_uv(logits), logits.shape[-1], sigma=sigma)
+    return gaussian_heatmaps(predicted_uv(logits, side_tilt_deg), logits.shape[-1], sigma=sigma)
 
 
 def heatmap_pool(heatmap: Tensor, features: Tensor) -> Tensor:
@@ -499,7 +504,9 @@ class SigmaNetwork(nn.Module):
         if self.local_encoder is not None:
             local = self.local_encoder(images.reshape(b * cfg.num_views, *images.shape[2:]))
             weights = (
-                point_heatmaps(trans.detach(), cfg.head_pool_sigma) if head_heatmap is None else head_heatmap
+                point_heatmaps(trans.detach(), cfg.head_pool_sigma, cfg.side_tilt_deg)
+                if head_heatmap is None
+                else head_heatmap
             )
             head_in.append(heatmap_pool(weights, local.reshape(b, cfg.num_views, *local.shape[1:])))
         if self.proprio_preprocess is not None and cfg.proprio_in_heads:
@@ -509,7 +516,7 @@ class SigmaNetwork(nn.Module):
         nb = cfg.num_rotation_bins
         rot_logits = head[:, : 3 * nb].reshape(b, 3, nb)
         if self.yaw_scanner is not None:
-            uv = predicted_uv(trans.detach()) if head_uv is None else head_uv
+            uv = predicted_uv(trans.detach(), cfg.side_tilt_deg) if head_uv is None else head_uv
             scan = self.yaw_scanner(images, uv).to(rot_logits.dtype)
             rot_logits = torch.cat([rot_logits[:, :2], (rot_logits[:, 2] + scan)[:, None]], dim=1)
         out = NetworkOutput(

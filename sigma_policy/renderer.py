@@ -1,17 +1,9 @@
 """Pure-PyTorch orthographic virtual-view renderer (replaces RVT-1's PyTorch3D point renderer).
 
-Five fixed orthographic views of the canonical cube ``[-1, 1]^3`` (docs/method.md §4.1, hard-coded), each
-``img_size`` x ``img_size`` pixels. For a cube point ``(x, y, z)`` and ``S = img_size``:
-
-==========  ==================  ==================  ================
-view (idx)  u (column, right)   v (row, down)       view depth z
-==========  ==================  ==================  ================
-top (0)     (1 + x) S/2         (1 - y) S/2         1 - z
-front (1)   (1 - x) S/2         (1 - z) S/2         1 - y
-back (2)    (1 + x) S/2         (1 - z) S/2         1 + y
-left (3)    (1 + y) S/2         (1 - z) S/2         1 - x
-right (4)   (1 - y) S/2         (1 - z) S/2         1 + x
-==========  ==================  ==================  ================
+Five fixed orthographic views of the canonical cube ``[-1, 1]^3`` (docs/method.md §4.1), each ``img_size`` x
+``img_size`` pixels; which cube coordinates give each view's columns, rows and depth is the table of
+:mod:`sigma_policy.views` (RVT's axis-aligned views, or with ``side_tilt_deg`` side views that look down over a
+container's rim).
 
 Pixel convention (exact alignment). ``u, v`` are continuous image coordinates in which pixel index ``j`` covers
 ``[j, j + 1)`` and has its centre at ``j + 0.5``; the image spans exactly ``[-1, 1]`` of the cube.
@@ -34,9 +26,9 @@ non-empty pixels of that image; empty pixels get depth ``-1`` and zeros in the x
 location channels are the view id ``linspace(-1, 1, 5)[view]``, the row coordinate ``linspace(-1, 1, H)`` and the
 column coordinate ``linspace(-1, 1, W)``.
 
-Implementation (no Python loop over points or pixels). Each view depends on two cube coordinates for its
-image axes and one for its depth, and the 5 views use only 5 distinct image-axis quantities (``(1 +- x) S/2``,
-``(1 +- y) S/2``, ``(1 - z) S/2``), so per point and quantity the ``T = 2 ceil(r - 1/2) + 1`` candidate pixel
+Implementation (no Python loop over points or pixels). Each view depends on two coordinates for its image
+axes and one for its depth, and the 5 views use only 5 distinct image-axis quantities (``(1 +- x) S/2``,
+``(1 +- y) S/2``, ``(1 - z) S/2``; 8 with tilted side views, each with its own row coordinate), so per point and quantity the ``T = 2 ceil(r - 1/2) + 1`` candidate pixel
 rows/columns around ``floor(q)`` (3 for r = 1.32) and their squared centre distances are computed once. A point's
 key packs its float32 view depth bits (monotonic for z >= 0) above its point index into one int64, and per view
 the ``T x T`` candidates are scattered with ``scatter_reduce_(..., "amin")`` into a flat buffer -- the z-buffer.
@@ -66,28 +58,21 @@ from concurrent.futures import ThreadPoolExecutor
 import torch
 from torch import Tensor, nn
 
+from sigma_policy.views import VIEW_AXES, VIEW_NAMES, project_points, tilted_coordinates, view_axes
+
 __all__ = ["VIEW_AXES", "VIEW_NAMES", "VirtualViewRenderer", "project_points"]
 
-VIEW_NAMES: tuple[str, ...] = ("top", "front", "back", "left", "right")
 
-# Per view: (u axis, u sign, v axis, v sign, depth axis, depth sign); quantity = 1 + sign * coordinate[axis].
-VIEW_AXES: tuple[tuple[int, int, int, int, int, int], ...] = (
-    (0, +1, 1, -1, 2, -1),  # top: camera at +z
-    (0, -1, 2, -1, 1, -1),  # front: camera at +y
-    (0, +1, 2, -1, 1, +1),  # back: camera at -y
-    (1, +1, 2, -1, 0, -1),  # left: camera at +x
-    (1, -1, 2, -1, 0, +1),  # right: camera at -x
-)
+def _quantity_tables(
+    axes: tuple[tuple[int, int, int, int, int, int], ...],
+) -> tuple[tuple[tuple[int, int], ...], tuple[tuple[int, int], ...]]:
+    """The distinct image-axis quantities (axis, sign) -> q = (1 + sign * coordinate[axis]) * S / 2 of the views
+    ``axes`` (5 for RVT's views, 8 with tilted side views), and per view the positions of its column (u) and row
+    (v) quantities in that list."""
+    quantities = tuple(dict.fromkeys(q for a in axes for q in ((a[0], a[1]), (a[2], a[3]))))
+    per_view = tuple((quantities.index((a[0], a[1])), quantities.index((a[2], a[3]))) for a in axes)
+    return quantities, per_view
 
-
-# The 5 distinct image-axis quantities (axis, sign) -> q = (1 + sign * coordinate[axis]) * S / 2, and per view the
-# positions of its column (u) and row (v) quantities in this list.
-_AXIS_QUANTITIES: tuple[tuple[int, int], ...] = tuple(
-    dict.fromkeys(q for a in VIEW_AXES for q in ((a[0], a[1]), (a[2], a[3])))
-)
-_VIEW_QUANTITIES: tuple[tuple[int, int], ...] = tuple(
-    (_AXIS_QUANTITIES.index((a[0], a[1])), _AXIS_QUANTITIES.index((a[2], a[3]))) for a in VIEW_AXES
-)
 
 _INF_BITS = 0x7F800000  # float32 +inf as int32 bits: the key's depth part for an empty pixel
 _NEG_ONE_BITS = -0x40800000  # float32 -1.0 as int32 bits (0xBF800000): the depth channel of an empty pixel
@@ -96,25 +81,6 @@ _SCATTER_MODES = ("auto", "dummy", "spread", "compact")
 _OFF_IMAGE = (
     1e30  # added (times the squared pixel overshoot >= 1) to the squared distance of off-image pixels
 )
-
-
-def _view_tables(device: torch.device) -> tuple[Tensor, Tensor]:
-    """Gather index (15,) into xyz and signs (15,) giving [u, v, z] per view, view-major."""
-    axes = torch.tensor([[a[0], a[2], a[4]] for a in VIEW_AXES], device=device).flatten()
-    signs = torch.tensor([[a[1], a[3], a[5]] for a in VIEW_AXES], device=device).flatten()
-    return axes, signs
-
-
-def project_points(points_cube: Tensor, img_size: int) -> tuple[Tensor, Tensor]:
-    """Continuous pixel coordinates and view depths of cube points ``(B, N, 3)`` in all 5 views.
-
-    Returns ``uv (B, N, V, 2)`` (u = column, v = row; pixel j covers [j, j+1)) and ``z (B, N, V)``.
-    """
-    axes, signs = _view_tables(points_cube.device)
-    # (1 + s * c) * (S / 2): multiplication by +-1 is exact, so every path computes bit-identical values.
-    q = (1 + points_cube[..., axes] * signs.to(points_cube.dtype)).unflatten(-1, (len(VIEW_NAMES), 3))
-    uv = q[..., :2] * (img_size / 2)
-    return uv, q[..., 2]
 
 
 class _Workspace:
@@ -218,9 +184,16 @@ class VirtualViewRenderer(nn.Module):
             of the buffer at the same pixel (CUDA: no atomic hot spot, no compaction), ``"compact"`` dropped with
             a boolean mask first (fewer atomics, but the compaction costs more on both devices), ``"auto"``
             (default) ``"dummy"`` on CPU and ``"spread"`` elsewhere.
+        side_tilt_deg: the four side views look down by this angle (sigma_policy/views.py); 0 = RVT's views.
     """
 
-    def __init__(self, img_size: int = 220, radius_px: float = 1.32, scatter_mode: str = "auto") -> None:
+    def __init__(
+        self,
+        img_size: int = 220,
+        radius_px: float = 1.32,
+        scatter_mode: str = "auto",
+        side_tilt_deg: float = 0.0,
+    ) -> None:
         super().__init__()
         if img_size < 1:
             raise ValueError(f"img_size must be positive, got {img_size}")
@@ -231,6 +204,9 @@ class VirtualViewRenderer(nn.Module):
         if scatter_mode not in _SCATTER_MODES:
             raise ValueError(f"scatter_mode must be one of {_SCATTER_MODES}, got {scatter_mode!r}")
         self.scatter_mode = scatter_mode
+        self.side_tilt_deg = float(side_tilt_deg)
+        self._view_axes = view_axes(self.side_tilt_deg)  # validates the angle
+        self._quantities, self._view_quantities = _quantity_tables(self._view_axes)
         # Candidate pixels per axis: floor(q) - reach .. floor(q) + reach (3 for r = 1.32). A pixel j more than
         # reach away has |j + 0.5 - q| >= reach + 1/2 >= r, so it cannot be covered.
         self._reach = max(0, math.ceil(self.radius_px - 0.5))
@@ -255,7 +231,7 @@ class VirtualViewRenderer(nn.Module):
     def project(self, points_cube: Tensor) -> Tensor:
         """Continuous pixel coordinates ``(B, N, V, 2)`` (u = column, v = row) of cube points ``(B, N, 3)``,
         consistent with :meth:`forward`: the point rasterises into pixel ``(floor(v), floor(u))``."""
-        return project_points(points_cube, self.img_size)[0]
+        return project_points(points_cube, self.img_size, self.side_tilt_deg)[0]
 
     @torch.no_grad()
     def zbuffer(self, points_cube: Tensor, mask: Tensor | None = None) -> tuple[Tensor, Tensor]:
@@ -381,7 +357,7 @@ class VirtualViewRenderer(nn.Module):
         row_d2 = ws.get("row_d2", (T, m), f32, dev)
         row_addr = ws.get("row_addr", (T, m), i32, dev)
         for view, ((_, _, _, _, cz, sz), (iu, iv)) in enumerate(
-            zip(VIEW_AXES, _VIEW_QUANTITIES, strict=True)
+            zip(self._view_axes, self._view_quantities, strict=True)
         ):
             _one_plus(coords[cz], sz, out=z)
             # Ignored points and points behind the camera (z < 0: sign bit set) get +inf added to the row distance.
@@ -403,21 +379,23 @@ class VirtualViewRenderer(nn.Module):
                 self._scatter_compact(buf, row_d2, row_addr, tap_d2[iu], tap_pix[iu], key)
 
     def _taps(self, pts: Tensor, first: int, ws: _Workspace) -> tuple[Tensor, Tensor, Tensor, Tensor]:
-        """What every view needs of ``pts (m, 3)`` (memory of ``ws``): cube coordinates ``(3, m)`` with NaN as 0,
+        """What every view needs of ``pts (m, 3)`` (memory of ``ws``): cube coordinates ``(3, m)`` with NaN as 0
+        (``(7, m)`` with tilted side views, :func:`~sigma_policy.views.tilted_coordinates`),
         flat point indices ``first ..`` ``(m,)``, and per image-axis quantity the ``T`` candidate pixel indices
         ``(Q, T, m)`` int32 (clamped to the image) and their squared centre distances ``(Q, T, m)`` (+1e30 or more
         for pixels off the image)."""
         m, dev = pts.shape[0], pts.device
         S, T, f32 = self.img_size, 2 * self._reach + 1, torch.float32
         coords = torch.nan_to_num(pts.t(), 0.0, 0.0, 0.0, out=ws.get("coords", (3, m), f32, dev))
+        coords = tilted_coordinates(coords, self.side_tilt_deg, dim=0)  # + tilted side-view rows (3 + 4, m)
         flat = torch.arange(first, first + m, out=ws.get("flat", (m,), torch.int64, dev))
-        tap_d2 = ws.get("tap_d2", (len(_AXIS_QUANTITIES), T, m), f32, dev)
-        tap_pix = ws.get("tap_pix", (len(_AXIS_QUANTITIES), T, m), torch.int32, dev)
+        tap_d2 = ws.get("tap_d2", (len(self._quantities), T, m), f32, dev)
+        tap_pix = ws.get("tap_pix", (len(self._quantities), T, m), torch.int32, dev)
         q = ws.get("q", (m,), f32, dev)
         j = ws.get("j", (T, m), f32, dev)
         jc = ws.get("jc", (T, m), f32, dev)
         offsets = torch.arange(-self._reach, self._reach + 1, device=dev, dtype=f32)[:, None]
-        for i, (axis, sign) in enumerate(_AXIS_QUANTITIES):
+        for i, (axis, sign) in enumerate(self._quantities):
             # clamp: far points stay off the image
             _one_plus(coords[axis], sign, out=q).mul_(S / 2).clamp_(-2 * S, 3 * S)
             torch.add(q.floor()[None], offsets, out=j)  # pixel indices floor(q) - reach .. + reach (exact)

@@ -579,3 +579,33 @@ def test_yaw_scan_crop_sits_at_the_target_in_training_and_at_the_prediction_at_i
     seen.clear()
     action = post(policy.select_action(pre(single_observation(tiny_root, 1))))
     assert seen["head_uv"] is None and action.shape == (1, 9)
+
+
+def test_tilted_side_views_render_target_and_predict_in_one_geometry(tiny_root, monkeypatch):
+    """With ``side_tilt_deg`` the renderer, the heatmap targets and the back-projection all use the tilted views:
+    the side views' targets sit at the tilted projection (rows moved, columns and the top view not), training
+    backpropagates, and inference back-projects to a finite action."""
+    import sigma_policy.modeling_sigma as modeling
+
+    captured = {}
+    heatmaps = modeling.gaussian_heatmaps
+
+    def keep_uv(uv, *args, **kwargs):
+        captured["uv"] = uv
+        return heatmaps(uv, *args, **kwargs)
+
+    monkeypatch.setattr(modeling, "gaussian_heatmaps", keep_uv)
+    _, policy, pre, post, ds = build(tiny_root, side_tilt_deg=45.0, use_contrastive=False)
+    assert policy.renderer.side_tilt_deg == 45.0 and policy.network.cfg.side_tilt_deg == 45.0
+    loss, _ = policy.forward(pre(training_batch(ds, [0, 1, 3])))
+    loss.backward()
+    assert torch.isfinite(loss)
+    tilted = captured["uv"]
+    _, flat_policy, _, _, _ = build(tiny_root, use_contrastive=False)
+    flat_policy.forward(pre(training_batch(ds, [0, 1, 3])))
+    flat = captured["uv"]
+    assert torch.equal(tilted[:, 0], flat[:, 0]) and torch.equal(tilted[..., 0], flat[..., 0])
+    assert (tilted[:, 1:, 1] - flat[:, 1:, 1]).abs().max() > 1.0
+    policy.eval()
+    action = post(policy.select_action(pre(single_observation(tiny_root, 1))))
+    assert action.shape == (1, 9) and torch.isfinite(action).all()

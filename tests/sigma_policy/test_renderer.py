@@ -10,22 +10,30 @@ import torch
 from sigma_policy.renderer import VIEW_NAMES, VirtualViewRenderer, project_points
 
 
-def _reference_uvz(p: torch.Tensor, view: str, S: int) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
-    """The docs/method.md §4.1 camera table, written out view by view (float32, same arithmetic as documented)."""
+def _reference_uvz(
+    p: torch.Tensor, view: str, S: int, k: float = 0.0
+) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+    """The docs/method.md §4.1 camera table, written out view by view (float32, same arithmetic as documented);
+    ``k`` = tan of the side views' tilt: their rows read ``(z + k * depth sign * depth coordinate) / (1 + k)``
+    (sigma_policy/views.py)."""
     x, y, z = p.unbind(-1)
     half = S / 2
+    if k:
+        zf, zb, zl, zr = ((z + k * s * c) / (1 + k) for s, c in ((-1, y), (1, y), (-1, x), (1, x)))
+    else:
+        zf = zb = zl = zr = z
     table = {
         "top": ((1 + x) * half, (1 - y) * half, 1 - z),
-        "front": ((1 - x) * half, (1 - z) * half, 1 - y),
-        "back": ((1 + x) * half, (1 - z) * half, 1 + y),
-        "left": ((1 + y) * half, (1 - z) * half, 1 - x),
-        "right": ((1 - y) * half, (1 - z) * half, 1 + x),
+        "front": ((1 - x) * half, (1 - zf) * half, 1 - y),
+        "back": ((1 + x) * half, (1 - zb) * half, 1 + y),
+        "left": ((1 + y) * half, (1 - zl) * half, 1 - x),
+        "right": ((1 - y) * half, (1 - zr) * half, 1 + x),
     }
     return table[view]
 
 
 def reference_render(
-    points: torch.Tensor, feats: torch.Tensor, mask: torch.Tensor, S: int, r: float
+    points: torch.Tensor, feats: torch.Tensor, mask: torch.Tensor, S: int, r: float, k: float = 0.0
 ) -> torch.Tensor:
     """Brute force: for every pixel test every point (disc of radius r around (u, v) covers the pixel centre,
     view depth >= 0), keep the smallest depth, ties to the lowest index. O(V H W N) per sample; rows are
@@ -40,7 +48,7 @@ def reference_render(
     rows = max(1, 2**24 // max(1, S * N))
     for b in range(B):
         for vi, view in enumerate(VIEW_NAMES):
-            u, v, z = _reference_uvz(points[b], view, S)
+            u, v, z = _reference_uvz(points[b], view, S, k)
             du = centres[:, None] - u[None, :]  # (W, N)
             zmin = torch.empty(S, S, device=dev)
             winner = torch.empty(S, S, dtype=torch.long, device=dev)
@@ -90,6 +98,15 @@ def test_matches_brute_force_reference(S: int, r: float) -> None:
     torch.testing.assert_close(got, want, rtol=0, atol=1e-6)
     # The default 220 px / 1.32 px geometry leaves few pixels empty at this density, so the check is not vacuous.
     assert (got[:, :, 6] != -1).float().mean() > 0.3
+
+
+@pytest.mark.parametrize(("S", "tilt"), [(48, 45.0), (33, 30.0)])
+def test_tilted_side_views_match_brute_force_reference(S: int, tilt: float) -> None:
+    pts, feats, mask = _random_cloud(B=2, N=1500, seed=S + 7)
+    got = VirtualViewRenderer(img_size=S, side_tilt_deg=tilt)(pts, feats, mask)
+    want = reference_render(pts, feats, mask, S, 1.32, k=math.tan(math.radians(tilt)))
+    torch.testing.assert_close(got, want, rtol=0, atol=1e-6)
+    assert not torch.equal(got[:, 1:], reference_render(pts, feats, mask, S, 1.32)[:, 1:])  # the tilt shows
 
 
 @pytest.mark.parametrize("scatter_mode", ["dummy", "spread", "compact"])

@@ -1,0 +1,99 @@
+"""Where the five virtual views look: which cube coordinates give each view's columns, rows and depth.
+
+RVT's five orthographic views of the canonical cube ``[-1, 1]^3`` (docs/method.md §4.1) look along the cube's
+axes: the top view down, the four side views horizontally. For a cube point ``(x, y, z)`` and ``S = img_size``
+each image coordinate is ``(1 + sign * coordinate) * S / 2`` and the view depth ``1 + sign * coordinate``:
+
+==========  ==================  ==================  ================
+view (idx)  u (column, right)   v (row, down)       view depth
+==========  ==================  ==================  ================
+top (0)     (1 + x) S/2         (1 - y) S/2         1 - z
+front (1)   (1 - x) S/2         (1 - z) S/2         1 - y
+back (2)    (1 + x) S/2         (1 - z) S/2         1 + y
+left (3)    (1 + y) S/2         (1 - z) S/2         1 - x
+right (4)   (1 - y) S/2         (1 - z) S/2         1 + x
+==========  ==================  ==================  ================
+
+**Tilted side views** (``side_tilt_deg`` > 0; not in RVT or the paper). A horizontal side view cannot see into a
+container: in robosuite's PickPlace the bins' walls rise 8 cm above their floor, and the bread (4.8 cm tall) and
+the can (8 cm) stand below the rim, so in all four side views they cover 0-2 pixels against 13-27 for the milk
+carton and the cereal box (docs/learning.md "PickPlace: the side views cannot see the bread or the can"). A side
+view tilted down by ``θ`` sees over a rim. Its rays descend by ``k = tan θ`` per unit of horizontal travel, so
+along a ray ``z + k * depth`` is constant and the view's rows read the coordinate
+
+    ``z_t = (z + k * s_d * c_d) / (1 + k)``
+
+(``c_d`` the view's depth coordinate and ``s_d`` its sign, e.g. ``z_t = (z - k y) / (1 + k)`` for the front view,
+whose depth is ``1 - y``), in place of ``z``. The division keeps the whole cube in the image, at the cost of a
+``1 + k`` times coarser row direction (2 at 45°). The z-buffer still orders points by the horizontal depth, which
+grows along every tilted ray. Such a view is an orthographic camera elevated by ``θ`` whose image is stretched
+by ``1 / cos θ`` along its rows; the renderer, the heatmap targets and the back-projection all use this table, so
+they stay consistent. The columns and the top view are unchanged, and ``side_tilt_deg = 0`` is exactly RVT's
+geometry.
+"""
+
+from __future__ import annotations
+
+import math
+
+import torch
+from torch import Tensor
+
+__all__ = ["SIDE_VIEWS", "VIEW_AXES", "VIEW_NAMES", "project_points", "tilted_coordinates", "view_axes"]
+
+VIEW_NAMES: tuple[str, ...] = ("top", "front", "back", "left", "right")
+
+# Per view: (u axis, u sign, v axis, v sign, depth axis, depth sign); quantity = 1 + sign * coordinate[axis].
+VIEW_AXES: tuple[tuple[int, int, int, int, int, int], ...] = (
+    (0, +1, 1, -1, 2, -1),  # top: camera at +z
+    (0, -1, 2, -1, 1, -1),  # front: camera at +y
+    (0, +1, 2, -1, 1, +1),  # back: camera at -y
+    (1, +1, 2, -1, 0, -1),  # left: camera at +x
+    (1, -1, 2, -1, 0, +1),  # right: camera at -x
+)
+SIDE_VIEWS: tuple[int, ...] = (1, 2, 3, 4)
+
+
+def tilt_slope(side_tilt_deg: float) -> float:
+    """``k = tan θ`` of a side-view tilt in degrees (0 <= θ < 90)."""
+    if not 0.0 <= side_tilt_deg < 90.0:
+        raise ValueError(f"side_tilt_deg must be in [0, 90), got {side_tilt_deg}")
+    return math.tan(math.radians(side_tilt_deg))
+
+
+def view_axes(side_tilt_deg: float = 0.0) -> tuple[tuple[int, int, int, int, int, int], ...]:
+    """:data:`VIEW_AXES`, with each side view's row axis replaced by its tilted coordinate when tilted: index
+    ``3 + i`` for the i-th side view, a row of :func:`tilted_coordinates`."""
+    if tilt_slope(side_tilt_deg) == 0.0:
+        return VIEW_AXES
+    axes = list(VIEW_AXES)
+    for i, view in enumerate(SIDE_VIEWS):
+        u, su, _, sv, d, sd = axes[view]
+        axes[view] = (u, su, 3 + i, sv, d, sd)
+    return tuple(axes)
+
+
+def tilted_coordinates(coords: Tensor, side_tilt_deg: float, dim: int = -1) -> Tensor:
+    """``coords`` with 3 entries along ``dim`` (x, y, z), extended by the four side views' tilted row coordinates
+    ``z_t`` (module docstring) when tilted; unchanged when not."""
+    k = tilt_slope(side_tilt_deg)
+    if k == 0.0:
+        return coords
+    x, y, z = coords.unbind(dim)
+    rows = [(z + k * VIEW_AXES[v][5] * (x, y)[VIEW_AXES[v][4]]) / (1 + k) for v in SIDE_VIEWS]
+    return torch.stack([x, y, z, *rows], dim)
+
+
+def project_points(points_cube: Tensor, img_size: int, side_tilt_deg: float = 0.0) -> tuple[Tensor, Tensor]:
+    """Continuous pixel coordinates and view depths of cube points ``(B, N, 3)`` in all 5 views.
+
+    Returns ``uv (B, N, V, 2)`` (u = column, v = row; pixel j covers [j, j+1)) and ``z (B, N, V)``.
+    """
+    axes = view_axes(side_tilt_deg)
+    index = torch.tensor([[a[0], a[2], a[4]] for a in axes], device=points_cube.device).flatten()
+    signs = torch.tensor([[a[1], a[3], a[5]] for a in axes], device=points_cube.device).flatten()
+    coords = tilted_coordinates(points_cube, side_tilt_deg)
+    # (1 + s * c) * (S / 2): multiplication by +-1 is exact, so every path computes bit-identical values.
+    q = (1 + coords[..., index] * signs.to(points_cube.dtype)).unflatten(-1, (len(VIEW_NAMES), 3))
+    uv = q[..., :2] * (img_size / 2)
+    return uv, q[..., 2]
