@@ -19,9 +19,11 @@ estimate to the window centre), and the two estimates are averaged.
 
 Tilted side views (``side_tilt_deg`` > 0, sigma_policy/views.py): a side view's rows then read a mix of ``z`` and
 the view's depth coordinate, so the score no longer splits into view pairs, and voxel centres no longer land on
-pixel centres. Every voxel centre is projected instead (:func:`~sigma_policy.views.project_points`) and reads the
-pixel it falls in, ``chunk`` x-slices at a time; the refinement takes the same centroid of the summed score along
-each axis through the argmax voxel.
+pixel centres. Every voxel centre is projected instead (:func:`~sigma_policy.views.project_points`) and reads each
+view by linear interpolation between the two pixel rows around it (its column is a pixel centre), ``chunk``
+x-slices at a time; the refinement takes the same centroid of the summed score along each axis through the argmax
+voxel. The table of those reads is cached per size and angle: 3 numbers per voxel and view, 26 MB at 64 px, but
+``S^3`` grows fast (about 1 GB at the paper's 220 px).
 """
 
 from __future__ import annotations
