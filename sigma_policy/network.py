@@ -282,11 +282,6 @@ def predicted_uv(logits: Tensor, side_tilt_deg: float = 0.0) -> Tensor:
     return project_points(point[:, None].to(logits.dtype), size, side_tilt_deg)[0][:, 0]
 
 
-def point_heatmaps(logits: Tensor, sigma: float, side_tilt_deg: float = 0.0) -> Tensor:
-    """Gaussians ``(B, V, H, W)`` of width ``sigma`` pixels at :func:`predicted_uv`."""
-    return gaussian_heatmaps(predicted_uv(logits, side_tilt_deg), logits.shape[-1], sigma=sigma)
-
-
 def heatmap_pool(heatmap: Tensor, features: Tensor) -> Tensor:
     """Per-view sum of ``features`` (B, V, C, H, W) weighted by ``heatmap`` (B, V, H, W) -> (B, V*C), view-major."""
     b, v = heatmap.shape[:2]
@@ -501,10 +496,15 @@ class SigmaNetwork(nn.Module):
         hm_logits = trans.detach() if cfg.detach_heatmap_for_features else trans
         hm = torch.softmax(hm_logits.flatten(2).float(), dim=-1).reshape(trans.shape)  # (B, V, H, W)
         head_in = [max_feat, heatmap_pool(hm, u.reshape(b, cfg.num_views, *u.shape[1:]))]  # (B, V*final_dim)
+        # At inference the heads' pooling and the yaw scan both sit at the predicted point: lift it once.
+        lifted = (self.local_encoder is not None and head_heatmap is None) or (
+            self.yaw_scanner is not None and head_uv is None
+        )
+        pred_uv = predicted_uv(trans.detach(), cfg.side_tilt_deg) if lifted else None
         if self.local_encoder is not None:
             local = self.local_encoder(images.reshape(b * cfg.num_views, *images.shape[2:]))
             weights = (
-                point_heatmaps(trans.detach(), cfg.head_pool_sigma, cfg.side_tilt_deg)
+                gaussian_heatmaps(pred_uv, cfg.img_size, sigma=cfg.head_pool_sigma)
                 if head_heatmap is None
                 else head_heatmap
             )
@@ -516,7 +516,7 @@ class SigmaNetwork(nn.Module):
         nb = cfg.num_rotation_bins
         rot_logits = head[:, : 3 * nb].reshape(b, 3, nb)
         if self.yaw_scanner is not None:
-            uv = predicted_uv(trans.detach(), cfg.side_tilt_deg) if head_uv is None else head_uv
+            uv = pred_uv if head_uv is None else head_uv
             scan = self.yaw_scanner(images, uv).to(rot_logits.dtype)
             rot_logits = torch.cat([rot_logits[:, :2], (rot_logits[:, 2] + scan)[:, None]], dim=1)
         out = NetworkOutput(

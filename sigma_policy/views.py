@@ -73,15 +73,27 @@ def view_axes(side_tilt_deg: float = 0.0) -> tuple[tuple[int, int, int, int, int
     return tuple(axes)
 
 
-def tilted_coordinates(coords: Tensor, side_tilt_deg: float, dim: int = -1) -> Tensor:
+def tilted_coordinates(
+    coords: Tensor, side_tilt_deg: float, dim: int = -1, out: Tensor | None = None
+) -> Tensor:
     """``coords`` with 3 entries along ``dim`` (x, y, z), extended by the four side views' tilted row coordinates
-    ``z_t`` (module docstring) when tilted; unchanged when not."""
+    ``z_t`` (module docstring) when tilted; unchanged when not. ``out``: where to write the 7 entries (the renderer
+    passes its reused scratch memory; ``coords`` may be its first 3)."""
     k = tilt_slope(side_tilt_deg)
     if k == 0.0:
         return coords
+    if out is None:
+        shape = list(coords.shape)
+        shape[dim] = 3 + len(SIDE_VIEWS)
+        out = coords.new_empty(shape)
+    out.narrow(dim, 0, 3).copy_(coords)  # a no-op where coords is that memory
     x, y, z = coords.unbind(dim)
-    rows = [(z + k * VIEW_AXES[v][5] * (x, y)[VIEW_AXES[v][4]]) / (1 + k) for v in SIDE_VIEWS]
-    return torch.stack([x, y, z, *rows], dim)
+    for i, view in enumerate(SIDE_VIEWS):
+        _, _, _, _, depth_axis, depth_sign = VIEW_AXES[view]
+        # (z + k * s_d * c_d) / (1 + k), with the product first, as the brute-force reference computes it
+        row = out.select(dim, 3 + i)
+        torch.mul((x, y)[depth_axis], k * depth_sign, out=row).add_(z).div_(1 + k)
+    return out
 
 
 def project_points(points_cube: Tensor, img_size: int, side_tilt_deg: float = 0.0) -> tuple[Tensor, Tensor]:
