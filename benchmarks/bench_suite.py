@@ -98,6 +98,12 @@ class SuiteBenchConfig:
 
         return self.lr or PRESETS[self.preset]["optimizer_lr"]
 
+    @property
+    def loader_workers(self) -> int:
+        """DataLoader workers of the training run: none on the CPU (the read shares the 2 cores with the update),
+        4 on a GPU machine, where reading in the training process took as long as the update (docs/gpu.md)."""
+        return 0 if self.device == "cpu" else 4
+
     def run_dir(self, seed: int) -> Path:
         """Where training seed ``seed`` of this schedule trains, is diagnosed and is evaluated."""
         return self.output_dir / "runs" / f"seed{seed}_decay{self.decay_steps}_lr{self.peak_lr:g}"
@@ -116,6 +122,7 @@ class SuiteBenchConfig:
             preset=self.preset,
             seed=seed,
             device=self.device,
+            num_workers=self.loader_workers,
             job_name=f"suite_seed{seed}",
             save_freq=max(1, self.steps // self.checkpoints),
             extra_args=[*self.policy_args, *self.schedule_args],

@@ -43,6 +43,10 @@ class TrainRun:
     job_name: str = "sigma"
     # Save a checkpoint every this many steps (None = only at the end); sigma-diagnose scores each one.
     save_freq: int | None = None
+    # DataLoader workers. 0 reads each batch in the training process: on 2 CPU cores workers would take cores from
+    # the update. On a GPU machine that read took as long as the update itself (65-75 ms per batch of 8 on an
+    # H200's host, docs/gpu.md), so runs there read in workers.
+    num_workers: int = 0
     # Extra ``--policy.*`` (or any lerobot-train) arguments, e.g. ["--policy.use_contrastive=false"].
     extra_args: list[str] = field(default_factory=list)
 
@@ -154,7 +158,7 @@ class TrainRun:
             f"--job_name={self.job_name}",
             f"--steps={self.steps}",
             f"--batch_size={self.batch_size}",
-            "--num_workers=0",
+            f"--num_workers={self.num_workers}",
             f"--log_freq={max(1, self.steps // 20)}",
             f"--save_freq={self.save_freq or self.steps}",
             "--wandb.enable=false",

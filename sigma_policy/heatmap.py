@@ -22,8 +22,8 @@ the view's depth coordinate, so the score no longer splits into view pairs, and 
 pixel centres. Every voxel centre is projected instead (:func:`~sigma_policy.views.project_points`) and reads each
 view by linear interpolation between the two pixel rows around it (its column is a pixel centre), ``chunk``
 x-slices at a time; the refinement takes the same centroid of the summed score along each axis through the argmax
-voxel. The table of those reads is cached per size and angle: 3 numbers per voxel and view, 26 MB at 64 px, but
-``S^3`` grows fast (about 1 GB at the paper's 220 px).
+voxel. A voxel's column depends on one of its indices and its row on two, so the reads come from per-view tables
+of ``S`` columns and ``S^2`` rows (cached per size and angle), not from a table over the whole ``S^3`` grid.
 """
 
 from __future__ import annotations
@@ -139,32 +139,55 @@ def heatmap_to_cube_point(
     return point + shift * (2 / S)  # one voxel is 2 / S in cube coordinates
 
 
-@functools.lru_cache(maxsize=4)
-def _voxel_taps(S: int, side_tilt_deg: float, device: torch.device) -> tuple[Tensor, Tensor, Tensor]:
-    """Where every voxel centre ``(S^3,)``, x-major, reads each view ``(V, S^3)``: the flat indices of the two
-    pixels in its column that straddle its projection, and the weight of the second (linear interpolation along
-    the rows; a voxel centre lands on a pixel centre in columns, and in rows too when a view is not tilted)."""
+@functools.lru_cache(maxsize=8)
+def _view_reads(S: int, side_tilt_deg: float, device: torch.device) -> tuple[Tensor, Tensor, Tensor]:
+    """Per view, where a voxel centre reads it: its column ``(V, S)`` by its index along the view's u axis (a
+    pixel centre), and the upper of the two pixel rows around its projection with the weight of the lower one,
+    ``(V, S * S)`` each, by its indices along the view's v and depth axes (a tilted side view's row mixes the
+    two; the top view's ignores the depth). ``V * S^2`` numbers, not a table over the ``S^3`` grid."""
     g = voxel_centres(S, device)
-    grid = torch.stack(torch.meshgrid(g, g, g, indexing="ij"), -1).reshape(1, -1, 3)
-    uv = project_points(grid, S, side_tilt_deg)[0][0].permute(1, 0, 2)  # (V, S^3, 2)
-    col = uv[..., 0].floor().long().clamp(0, S - 1)
-    row = (uv[..., 1] - 0.5).clamp(0, S - 1)
+    cols, rows = [], []
+    for view, (u_axis, _, v_axis, _, d_axis, _) in enumerate(VIEW_AXES):
+        line = torch.zeros(S, 3, device=device)
+        line[:, u_axis] = g
+        cols.append(project_points(line[None], S, side_tilt_deg)[0][0, :, view, 0].floor().long())
+        plane = torch.zeros(S, S, 3, device=device)
+        plane[..., v_axis] = g[:, None]
+        plane[..., d_axis] = g[None, :]
+        rows.append(project_points(plane.reshape(1, -1, 3), S, side_tilt_deg)[0][0, :, view, 1])
+    row = (torch.stack(rows) - 0.5).clamp(0, S - 1)
     r0 = row.floor().long().clamp(max=S - 2)
-    return r0 * S + col, (r0 + 1) * S + col, row - r0
+    return torch.stack(cols).clamp(0, S - 1), r0, row - r0
+
+
+def _voxel_taps(voxels: Tensor, S: int, side_tilt_deg: float) -> tuple[Tensor, Tensor, Tensor]:
+    """Where voxel centres (flat x-major indices, any shape ``(...)``) read each view ``(V, ...)``: the flat
+    indices of the two pixels in their column that straddle their projection, and the weight of the second
+    (linear interpolation along the rows; a voxel centre lands on a pixel centre in columns, and in rows too when
+    a view is not tilted)."""
+    cols, upper, weight = _view_reads(S, float(side_tilt_deg), voxels.device)
+    cell = (voxels // (S * S), voxels // S % S, voxels % S)
+    i0, w = [], []
+    for view, (u_axis, _, v_axis, _, d_axis, _) in enumerate(VIEW_AXES):
+        plane = cell[v_axis] * S + cell[d_axis]
+        i0.append(upper[view][plane] * S + cols[view][cell[u_axis]])
+        w.append(weight[view][plane])
+    i0 = torch.stack(i0)
+    return i0, i0 + S, torch.stack(w)
 
 
 def _projected_grid_point(prob: Tensor, chunk: int, refine_px: int, side_tilt_deg: float) -> Tensor:
     """:func:`heatmap_to_cube_point` for tilted side views: every voxel centre projected (module docstring)."""
     B, S = prob.shape[0], prob.shape[-1]
-    idx0, idx1, w = _voxel_taps(S, float(side_tilt_deg), prob.device)
     flat = prob.flatten(2)
 
     def score(voxels: Tensor) -> Tensor:
         """Summed interpolated probability ``(B, M)`` of flat voxel indices ``(M,)``, or ``(B, M)`` per sample."""
+        i0, i1, ww = _voxel_taps(voxels, S, float(side_tilt_deg))
         if voxels.ndim == 1:
-            i0, i1, ww = (t[:, voxels].expand(B, -1, -1) for t in (idx0, idx1, w))
+            i0, i1, ww = (t.expand(B, -1, -1) for t in (i0, i1, ww))
         else:
-            i0, i1, ww = (t[:, voxels].transpose(0, 1) for t in (idx0, idx1, w))
+            i0, i1, ww = (t.transpose(0, 1) for t in (i0, i1, ww))
         lo, hi = flat.gather(2, i0), flat.gather(2, i1)
         return (lo + (hi - lo) * ww).sum(1)
 

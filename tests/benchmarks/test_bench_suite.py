@@ -62,11 +62,13 @@ def test_device_option_reaches_lerobot_train_and_the_table(tmp_path):
     gpu = SuiteBenchConfig(tasks=["lift"], device="cuda", output_dir=tmp_path)
     command = gpu.train_run(1, tmp_path / "keyframe").command()
     assert "--policy.device=cuda" in command and "--seed=1" in command
+    assert "--num_workers=4" in command  # a GPU run reads its batches in loader workers
     assert f"--output_dir={tmp_path / 'runs' / 'seed1_decay6000_lr0.003' / 'train'}" in command
     assert "--policy.preset=suite" in command and "--policy.use_cpu_bf16_autocast=true" in command
     assert ", CUDA; closed loop" in markdown(gpu, [_result(1, {"lift:lift_cube": 20})])
     cpu = SuiteBenchConfig(tasks=["lift"], output_dir=tmp_path)
-    assert "--policy.device=cpu" in cpu.train_run(0, tmp_path / "keyframe").command()
+    cpu_command = cpu.train_run(0, tmp_path / "keyframe").command()
+    assert "--policy.device=cpu" in cpu_command and "--num_workers=0" in cpu_command
 
 
 def test_held_out_error_per_task_when_the_diagnostics_split_it():
