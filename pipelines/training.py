@@ -44,7 +44,7 @@ class TrainRun:
     # Save a checkpoint every this many steps (None = only at the end); sigma-diagnose scores each one.
     save_freq: int | None = None
     # DataLoader workers. 0 reads each batch in the training process: on 2 CPU cores workers would take cores from
-    # the update. On a GPU machine that read took as long as the update itself (65-75 ms per batch of 8 on an
+    # the update. On a GPU machine that read took as long as the update itself (65-77 ms per batch of 8 on an
     # H200's host, docs/gpu.md), so runs there read in workers.
     num_workers: int = 0
     # Extra ``--policy.*`` (or any lerobot-train) arguments, e.g. ["--policy.use_contrastive=false"].
