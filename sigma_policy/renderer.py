@@ -31,7 +31,8 @@ axes and one for its depth, and the 5 views use only 5 distinct image-axis quant
 ``(1 +- y) S/2``, ``(1 - z) S/2``; 8 with tilted side views, each with its own row coordinate), so per point and
 quantity the ``T = 2 ceil(r - 1/2) + 1`` candidate pixel rows/columns around ``floor(q)`` (3 for r = 1.32) and
 their squared centre distances are computed once. A point's key packs its float32 view depth bits (monotonic for
-z >= 0) above its point index into one int64, and per view the ``T x T`` candidates are scattered with ``scatter_reduce_(..., "amin")`` into a flat buffer -- the z-buffer.
+z >= 0) above its point index into one int64, and per view the ``T x T`` candidates are scattered with
+``scatter_reduce_(..., "amin")`` into a flat buffer -- the z-buffer.
 The radius test ``d_row^2 + d_col^2 < r^2`` is evaluated in float32 exactly as written, but turned into the
 scatter address with integer bit operations (the sign bit of ``d^2 - r^2``): candidates outside the disc, off the
 image or of invalid points go to a dummy slot on CPU, where boolean masks and ``torch.where`` are several times
@@ -207,6 +208,7 @@ class VirtualViewRenderer(nn.Module):
         self.side_tilt_deg = float(side_tilt_deg)
         self._view_axes = view_axes(self.side_tilt_deg)  # validates the angle
         self._quantities, self._view_quantities = _quantity_tables(self._view_axes)
+        self._coord_rows = 1 + max(a[2] for a in self._view_axes)  # x, y, z (+ 4 tilted side-view rows)
         # Candidate pixels per axis: floor(q) - reach .. floor(q) + reach (3 for r = 1.32). A pixel j more than
         # reach away has |j + 0.5 - q| >= reach + 1/2 >= r, so it cannot be covered.
         self._reach = max(0, math.ceil(self.radius_px - 0.5))
@@ -386,9 +388,7 @@ class VirtualViewRenderer(nn.Module):
         for pixels off the image)."""
         m, dev = pts.shape[0], pts.device
         S, T, f32 = self.img_size, 2 * self._reach + 1, torch.float32
-        coords = ws.get(
-            "coords", (1 + max(a[2] for a in self._view_axes), m), f32, dev
-        )  # 3, or 7 when tilted
+        coords = ws.get("coords", (self._coord_rows, m), f32, dev)
         torch.nan_to_num(pts.t(), 0.0, 0.0, 0.0, out=coords[:3])
         tilted_coordinates(coords[:3], self.side_tilt_deg, dim=0, out=coords)  # the tilted side-view rows
         flat = torch.arange(first, first + m, out=ws.get("flat", (m,), torch.int64, dev))
