@@ -14,6 +14,8 @@ same seeds (``sigma-eval``, from 100000, Wilson 95% intervals). Every stage resu
         --heldout_episodes 10 --eval_episodes 20 --max_keyframes 16 --output_dir outputs/demos_pp --publish false \
         --policy_args '[--policy.per_task_bounds=true,--policy.use_cpu_bf16_autocast=true]'
                                                          # PickPlace alone (docs/learning.md), ~70 min
+    python -m benchmarks.bench_demos --tasks '[pick_place:bread]' --demos '[100]' --steps 2000 ...
+                                                         # one object's variation alone (a task:variation name)
 """
 
 from __future__ import annotations
@@ -36,6 +38,7 @@ class DemosBenchConfig:
     """Options of the demonstrations benchmark."""
 
     output_dir: Path = Path("outputs/bench_demos")
+    # Tasks, or single variations as sigma-eval names them ("pick_place:bread": that object's episodes only).
     tasks: list[str] = field(default_factory=lambda: ["lift", "stack"])
     # Demonstrations per variation, one training run each (the largest is what is collected).
     demos: list[int] = field(default_factory=lambda: [10, 30, 100])

@@ -83,8 +83,8 @@ def main(cfg: VisibilityConfig) -> dict:
             item = kf.dataset[scene.rows[0]]
             obs = {k: v[None] for k, v in item.items() if k.startswith("observation.")}
             with torch.inference_mode():
-                pred = policy.predict(pre(obs | {"task": [scene.instructions[0]]}))
-            points, colors, bounds = pred.cloud_points, pred.cloud_colors, pred.bounds[0]
+                points, colors, bounds = policy.input_cloud(pre(obs | {"task": [scene.instructions[0]]}))
+            bounds = bounds[0]
             mask = bounds_mask(points, bounds)
             cube = torch.where(mask[..., None], world_to_cube(points, bounds), torch.zeros_like(points))
             objects = {n: spec.points(env.env, get_variation(spec, n)) for n in names}

@@ -1,5 +1,6 @@
-"""Scripted-expert demonstrations for a pipeline (``sigma-ablate``, ``sigma-compare``): one resumable
-``sigma-data collect`` into ``<output_dir>/data``, its summary line printed, an empty collection an error."""
+"""Scripted-expert demonstrations for a pipeline (``sigma-ablate``, ``sigma-compare``, the benchmarks): one
+resumable ``sigma-data collect`` into ``<output_dir>/data``, its summary line printed, an empty collection an error.
+Tasks are named as ``sigma-eval`` names them: ``"pick_place"`` (every variation) or ``"pick_place:bread"`` (one)."""
 
 from __future__ import annotations
 
@@ -23,9 +24,11 @@ def collect_demonstrations(
     from sigma_data.cameras import RenderOptions
     from sigma_data.collect import CollectConfig, CollectOutputConfig, collect
 
+    names, variations = split_variations(tasks)
     summary = collect(
         CollectConfig(
-            tasks=",".join(tasks),
+            tasks=",".join(names),
+            variations=variations,
             episodes=episodes,
             start_seed=start_seed,
             output=CollectOutputConfig(dir=Path(output_dir) / "data", repo_id=repo_id, **output),
@@ -38,3 +41,25 @@ def collect_demonstrations(
     if summary.kept == 0:
         raise RuntimeError("the experts produced no successful episode; nothing to train on")
     return dict(summary.outputs)
+
+
+def split_variations(tasks: list[str]) -> tuple[list[str], str]:
+    """``sigma-data collect``'s ``--tasks`` and ``--variations`` for task specs like ``["lift", "pick_place:bread"]``:
+    the task names in order, and ``"all"`` or the comma-separated variations (every variation of a task named
+    without one). An unknown task or variation raises ``ValueError``."""
+    from sigma_data.suite import get_task
+
+    names: list[str] = []
+    chosen: list[str] = []
+    for spec in tasks:
+        name, _, variation = spec.partition(":")
+        task = get_task(name)
+        known = [v.name for v in task.variations]
+        if variation and variation not in known:
+            raise ValueError(f"unknown variation '{variation}' of task '{name}'; known: {', '.join(known)}")
+        if name not in names:
+            names.append(name)
+        chosen += [variation] if variation else known
+    if all(":" not in spec for spec in tasks):
+        return names, "all"
+    return names, ",".join(dict.fromkeys(chosen))

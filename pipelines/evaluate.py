@@ -383,7 +383,7 @@ def grasp_fit(env, variation: str) -> dict[str, int]:
 
     from sigma_data.control import grip_site_frame
     from sigma_data.suite import get_variation
-    from sigma_data.tasks.pick_place import ridge_direction
+    from sigma_data.tasks.geometry import ridge_direction
 
     task = env.task
     if task.points is None:

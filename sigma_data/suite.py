@@ -169,14 +169,15 @@ def get_task(name: str) -> TaskSpec:
 
 
 def scene_bounds(task_names: Sequence[str]) -> tuple[float, ...]:
-    """The smallest box holding the workspace bounds of every named task: the policy's ``scene_bounds``.
+    """The smallest box holding the workspace bounds of every named task (``"pick_place"``, or one of its
+    variations, ``"pick_place:bread"``, which has its task's box): the policy's ``scene_bounds``.
 
     Train a multi-task policy on this box (``--policy.scene_bounds``); a box much larger than the workspace
     wastes virtual-view pixels (the ``small`` policy's 64² views then resolve ~1.6 cm instead of ~0.9 cm).
     """
     if not task_names:
         raise ValueError("scene_bounds needs at least one task name")
-    boxes = np.array([get_task(name).bounds for name in task_names], dtype=float)
+    boxes = np.array([get_task(name.partition(":")[0]).bounds for name in task_names], dtype=float)
     return (*map(float, boxes[:, :3].min(0)), *map(float, boxes[:, 3:].max(0)))
 
 

@@ -311,11 +311,7 @@ class SigmaPolicy(PreTrainedPolicy):
     def predict(self, batch: dict[str, Any]) -> SigmaPrediction:
         """Deterministic prediction (no augmentation, no render noise) with everything needed to visualise it."""
         cfg = self.config
-        cloud = self._cloud(batch, t=0)
-        tasks = self._tasks(batch, cloud.points.shape[0])
-        bounds = self._bounds(tasks)
-        if cfg.place_with_mean_at_eval:
-            bounds = self._cloud_box(cloud.points, bounds)
+        cloud, tasks, bounds = self._inference_scene(batch)
         views = self._render(cloud.points, cloud.colors, bounds)
         out = self._run_network(views, tasks, batch, bounds)
         trans = out.trans.float()
@@ -343,7 +339,23 @@ class SigmaPolicy(PreTrainedPolicy):
             cloud_colors=cloud.colors,
         )
 
+    @torch.no_grad()
+    def input_cloud(self, batch: dict[str, Any]) -> tuple[Tensor, Tensor, Tensor]:
+        """What :meth:`predict` renders, without the network: the fused camera cloud's points (B, N, 3) and
+        colours (B, N, 3), and each sample's box (B, 6)."""
+        cloud, _, bounds = self._inference_scene(batch)
+        return cloud.points, cloud.colors, bounds
+
     # ------------------------------------------------------------------ internals
+    def _inference_scene(self, batch: dict[str, Any]) -> tuple[_Cloud, list[str], Tensor]:
+        """The first frame's cloud, the instructions and the boxes inference renders them in."""
+        cloud = self._cloud(batch, t=0)
+        tasks = self._tasks(batch, cloud.points.shape[0])
+        bounds = self._bounds(tasks)
+        if self.config.place_with_mean_at_eval:
+            bounds = self._cloud_box(cloud.points, bounds)
+        return cloud, tasks, bounds
+
     def _check_depth_unit(self, depth_m: Tensor, key: str) -> None:
         """Fail fast (once) when depth is clearly not in ``depth_unit`` (e.g. millimetres read as metres)."""
         valid = depth_m[torch.isfinite(depth_m) & (depth_m > 0)]

@@ -48,16 +48,6 @@ def object_points(env: Any, obj: Any) -> np.ndarray:
     return np.concatenate(points)
 
 
-def ridge_direction(points: np.ndarray, depth: float = 0.005) -> np.ndarray | None:
-    """Unit xy direction of a ridge on top of the object (top ``depth`` slice twice as long as wide), else None."""
-    top = points[points[:, 2] >= points[:, 2].max() - depth][:, :2]
-    if len(top) < 3:
-        return None
-    centred = top - top.mean(axis=0)
-    evals, evecs = np.linalg.eigh(centred.T @ centred / len(top))
-    return evecs[:, 1] if evals[1] > 4 * max(evals[0], 1e-12) else None
-
-
 def points(env: Any, variation: Variation) -> np.ndarray:
     """World vertices (N, 3) of the object the variation names (its collision geoms)."""
     return object_points(env, env.objects[object_index(env, variation.params["object"])])

@@ -138,6 +138,18 @@ def test_unbatched_single_observation_inference(tiny_root):
     assert pred.views[0, 0, 3:6].abs().sum() > 0
 
 
+def test_input_cloud_is_what_predict_renders_without_running_the_network(tiny_root, monkeypatch):
+    _, policy, pre, _, _ = build(tiny_root)
+    policy.eval()
+    obs = pre(single_observation(tiny_root, 1))
+    pred = policy.predict(obs)
+    monkeypatch.setattr(policy, "_run_network", lambda *a, **k: pytest.fail("input_cloud ran the network"))
+    points, colors, bounds = policy.input_cloud(obs)
+    torch.testing.assert_close(points, pred.cloud_points, equal_nan=True)
+    torch.testing.assert_close(colors, pred.cloud_colors)
+    torch.testing.assert_close(bounds, pred.bounds)
+
+
 def test_calibration_keys_survive_the_preprocessor_unnormalised(tiny_root):
     mapping = {
         "VISUAL": NormalizationMode.MEAN_STD,
