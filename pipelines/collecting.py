@@ -44,22 +44,13 @@ def collect_demonstrations(
 
 
 def split_variations(tasks: list[str]) -> tuple[list[str], str]:
-    """``sigma-data collect``'s ``--tasks`` and ``--variations`` for task specs like ``["lift", "pick_place:bread"]``:
-    the task names in order, and ``"all"`` or the comma-separated variations (every variation of a task named
-    without one). An unknown task or variation raises ``ValueError``."""
-    from sigma_data.suite import get_task
+    """``sigma-data collect``'s ``--tasks`` and ``--variations`` for task specs like ``["lift", "pick_place:bread"]``
+    (:func:`sigma_data.suite.expand_tasks`): the task names in order, and ``"all"`` or the comma-separated variations
+    (every variation of a task named without one). An unknown task or variation raises ``ValueError``."""
+    from sigma_data.suite import expand_tasks
 
-    names: list[str] = []
-    chosen: list[str] = []
-    for spec in tasks:
-        name, _, variation = spec.partition(":")
-        task = get_task(name)
-        known = [v.name for v in task.variations]
-        if variation and variation not in known:
-            raise ValueError(f"unknown variation '{variation}' of task '{name}'; known: {', '.join(known)}")
-        if name not in names:
-            names.append(name)
-        chosen += [variation] if variation else known
+    pairs = expand_tasks(tasks)
+    names = list(dict.fromkeys(task for task, _ in pairs))
     if all(":" not in spec for spec in tasks):
         return names, "all"
-    return names, ",".join(dict.fromkeys(chosen))
+    return names, ",".join(variation for _, variation in pairs)

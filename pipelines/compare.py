@@ -234,7 +234,8 @@ def lerobot_eval_variation(
 
 def eval_stage(cfg: CompareConfig, data: dict[str, Path], trained: dict[str, dict]) -> dict[str, list[dict]]:
     """Per policy, per variation: successes over the same seeds, with Wilson 95% intervals."""
-    from pipelines.evaluate import EvalConfig, expand_tasks, run_eval, wilson_interval
+    from pipelines.evaluate import EvalConfig, run_eval, wilson_interval
+    from sigma_data.suite import expand_tasks
 
     out: dict[str, list[dict]] = {}
     for policy, info in trained.items():

@@ -173,21 +173,6 @@ def wilson_interval(successes: int, n: int, z: float = 1.96) -> tuple[float, flo
     return (max(0.0, centre - half), min(1.0, centre + half))
 
 
-def expand_tasks(specs: list[str]) -> list[tuple[str, str]]:
-    """``["lift", "stack:green_on_red"]`` or ``["all"]`` -> [(task, variation), ...] (errors name unknowns)."""
-    from sigma_data.suite import TASKS, get_task, get_variation
-
-    if specs == ["all"]:
-        specs = list(TASKS)
-    out: list[tuple[str, str]] = []
-    for spec in specs:
-        name, _, variation = spec.partition(":")
-        task = get_task(name)
-        names = [get_variation(task, variation).name] if variation else list(task.variation_names)
-        out += [(task.name, v) for v in names if (task.name, v) not in out]
-    return out
-
-
 def training_seeds(train_dataset: Path) -> set[int]:
     """Collection seeds recorded in a sigma dataset's ``meta/sigma.json`` (per-episode ``seed`` fields)."""
     from sigma_data.contract import read_sidecar
@@ -197,6 +182,8 @@ def training_seeds(train_dataset: Path) -> set[int]:
 
 
 def plan_jobs(cfg: EvalConfig) -> list[Job]:
+    from sigma_data.suite import expand_tasks
+
     pairs = expand_tasks(cfg.tasks)
     seeds = list(range(cfg.seed_start, cfg.seed_start + cfg.episodes))
     if cfg.train_dataset is not None:

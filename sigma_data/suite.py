@@ -168,6 +168,20 @@ def get_task(name: str) -> TaskSpec:
         raise ValueError(f"unknown task '{name}'; known tasks: {', '.join(sorted(TASKS))}") from None
 
 
+def expand_tasks(specs: Sequence[str]) -> list[tuple[str, str]]:
+    """``["lift", "stack:green_on_red"]`` or ``["all"]`` -> [(task, variation), ...] in order, each pair once: a task
+    named alone stands for all its variations. Unknown names raise ``ValueError`` naming them."""
+    if list(specs) == ["all"]:
+        specs = list(TASKS)
+    out: list[tuple[str, str]] = []
+    for spec in specs:
+        name, _, variation = spec.partition(":")
+        task = get_task(name)
+        names = [get_variation(task, variation).name] if variation else list(task.variation_names)
+        out += [(task.name, v) for v in names if (task.name, v) not in out]
+    return out
+
+
 def scene_bounds(task_names: Sequence[str]) -> tuple[float, ...]:
     """The smallest box holding the workspace bounds of every named task (``"pick_place"``, or one of its
     variations, ``"pick_place:bread"``, which has its task's box): the policy's ``scene_bounds``.
@@ -177,7 +191,8 @@ def scene_bounds(task_names: Sequence[str]) -> tuple[float, ...]:
     """
     if not task_names:
         raise ValueError("scene_bounds needs at least one task name")
-    boxes = np.array([get_task(name.partition(":")[0]).bounds for name in task_names], dtype=float)
+    tasks = dict.fromkeys(task for task, _ in expand_tasks(task_names))
+    boxes = np.array([get_task(name).bounds for name in tasks], dtype=float)
     return (*map(float, boxes[:, :3].min(0)), *map(float, boxes[:, 3:].max(0)))
 
 

@@ -129,8 +129,7 @@ def test_scene_bounds_is_the_union_of_the_task_boxes():
         lo, hi = np.array(get_task(name).bounds[:3]), np.array(get_task(name).bounds[3:])
         assert np.all(np.array(box[:3]) <= lo) and np.all(np.array(box[3:]) >= hi)
     assert box == get_task("pick_place").bounds  # Lift's box lies inside PickPlace's
-    assert (
-        scene_bounds(["pick_place:bread"]) == get_task("pick_place").bounds
-    )  # a variation has its task's box
+    # a variation has its task's box
+    assert scene_bounds(["pick_place:bread"]) == get_task("pick_place").bounds
     with pytest.raises(ValueError, match="unknown task"):
         scene_bounds(["lift", "juggle"])
