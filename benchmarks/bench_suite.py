@@ -32,6 +32,7 @@ minutes and evaluation 5 (RESULTS.md).
 
 from __future__ import annotations
 
+import json
 import os
 import sys
 from dataclasses import dataclass, field
@@ -105,8 +106,10 @@ class SuiteBenchConfig:
         return 0 if self.device == "cpu" else 4
 
     def run_dir(self, seed: int) -> Path:
-        """Where training seed ``seed`` of this schedule trains, is diagnosed and is evaluated."""
-        return self.output_dir / "runs" / f"seed{seed}_decay{self.decay_steps}_lr{self.peak_lr:g}"
+        """Where training seed ``seed`` of this schedule trains, is diagnosed and is evaluated (a batch other than
+        the suite's 8 is named: ``..._batch32``)."""
+        batch = "" if self.batch_size == 8 else f"_batch{self.batch_size}"
+        return self.output_dir / "runs" / f"seed{seed}_decay{self.decay_steps}_lr{self.peak_lr:g}{batch}"
 
     def train_run(self, seed: int, train_root: Path) -> TrainRun:
         """The ``lerobot-train`` run of training seed ``seed`` on the dataset at ``train_root``."""
@@ -160,8 +163,9 @@ def run_one(cfg: SuiteBenchConfig, seed: int, train_root: Path, held_root: Path)
     from benchmarks.training_runs import train_diagnose_evaluate
 
     run_dir = cfg.run_dir(seed)
+    run = cfg.train_run(seed, train_root)
     done = train_diagnose_evaluate(
-        cfg.train_run(seed, train_root),
+        run,
         run_dir,
         held_root,
         cfg.tasks,
@@ -170,7 +174,8 @@ def run_one(cfg: SuiteBenchConfig, seed: int, train_root: Path, held_root: Path)
         max_keyframes=cfg.max_keyframes,
         workers=cfg.workers,
     )
-    return {"seed": seed} | done
+    trained_on = json.loads((run.checkpoint / "train_config.json").read_text())["policy"]["device"]
+    return {"seed": seed, "trained_on": trained_on} | done
 
 
 def markdown(cfg: SuiteBenchConfig, results: list[dict]) -> str:
@@ -183,7 +188,7 @@ def markdown(cfg: SuiteBenchConfig, results: list[dict]) -> str:
         f"keyframes from {cfg.heldout_episodes} more per variation (seeds from 50000); 4 cameras at "
         f"{cfg.image_size}²; one multi-task policy, {' '.join(f'`{a}`' for a in cfg.preset_args)}, "
         f"{cfg.steps} `lerobot-train` steps × batch {cfg.batch_size}, peak learning rate {cfg.peak_lr:g} and its "
-        f"cosine decay over {cfg.decay_steps} steps, {cfg.device.upper()}; closed loop: `sigma-eval`, "
+        f"cosine decay over {cfg.decay_steps} steps, {trained_on(cfg, results)}; closed loop: `sigma-eval`, "
         f"{cfg.eval_episodes} episodes per variation (seeds from 100000), ≤ {cfg.max_keyframes} keyframes. "
         "Errors are medians over every keyframe with a goal at the last checkpoint; yaw is the mean absolute error "
         "of the yaw bin. One column (first table) and one row (second) per training seed.\n\n"
@@ -207,6 +212,14 @@ def markdown(cfg: SuiteBenchConfig, results: list[dict]) -> str:
             f"| {r['train_seconds'] / 60:.0f} | {r['eval'].get('seconds', float('nan')) / 60:.0f} |"
         )
     return head + "\n".join(lines + summary + per_task_lines(cfg, results)) + "\n"
+
+
+def trained_on(cfg: SuiteBenchConfig, results: list[dict]) -> str:
+    """Where the runs trained: ``--device``, or the device a reused run was trained on (a run trained on a GPU
+    machine and scored here with ``--device cpu``)."""
+    devices = dict.fromkeys(r.get("trained_on", cfg.device) for r in results) or {cfg.device: None}
+    where = "/".join(d.upper() for d in devices)
+    return where if where == cfg.device.upper() else f"trained on {where}, scored on {cfg.device.upper()}"
 
 
 def per_task_lines(cfg: SuiteBenchConfig, results: list[dict]) -> list[str]:

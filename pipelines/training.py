@@ -22,6 +22,9 @@ from typing import Any
 RESOLVED_AT_TRAINING = frozenset(
     {"preset", "scene_bounds", "instruction_bounds", "instruction_tasks", "cameras"}
 )
+# Arguments that do not change what a run learns: a run trained on a GPU machine is diagnosed and evaluated on a CPU
+# one with the same options (docs/gpu.md).
+NOT_COMPARED = frozenset({"policy.device"})
 
 
 @dataclass
@@ -79,7 +82,7 @@ class TrainRun:
 
     def check_same_options(self, train_config: Path) -> None:
         """Refuse to reuse or resume a run whose saved ``train_config.json`` disagrees with this run's
-        ``--policy.*``, ``--steps`` or ``--seed`` arguments (the output directory's name does not say how its run
+        ``--policy.*`` (but the device), ``--steps``, ``--batch_size`` or ``--seed`` arguments (the output directory's name does not say how its run
         was trained: a benchmark rerun with other ``--policy_args`` would otherwise trust the old checkpoint)."""
         if not train_config.exists():
             return
@@ -93,9 +96,11 @@ class TrainRun:
             if key == "policy.preset" and self.policy_type == "sigma":
                 self._check_same_preset(value, arguments, policy, train_config)
                 continue
+            if key in NOT_COMPARED:
+                continue
             if key.startswith("policy."):
                 where, name = policy, key.removeprefix("policy.")
-            elif key in ("steps", "seed"):
+            elif key in ("steps", "seed", "batch_size"):
                 where, name = saved, key
             else:
                 continue

@@ -54,6 +54,8 @@ def test_learning_rate_option_reaches_lerobot_train_and_the_table():
         small, lift
     )
     assert small.run_dir(0).name == "seed0_decay6000_lr0.01"
+    wide = SuiteBenchConfig(tasks=["lift"], batch_size=32, steps=3000)
+    assert wide.run_dir(0).name == "seed0_decay3000_lr0.003_batch32"  # not the batch-8 run's directory
     tuned = SuiteBenchConfig(tasks=["lift"], lr=1e-3)
     assert tuned.schedule_args == ["--policy.scheduler_decay_steps=6000", "--policy.optimizer_lr=0.001"]
 
@@ -66,6 +68,10 @@ def test_device_option_reaches_lerobot_train_and_the_table(tmp_path):
     assert f"--output_dir={tmp_path / 'runs' / 'seed1_decay6000_lr0.003' / 'train'}" in command
     assert "--policy.preset=suite" in command and "--policy.use_cpu_bf16_autocast=true" in command
     assert ", CUDA; closed loop" in markdown(gpu, [_result(1, {"lift:lift_cube": 20})])
+    scored_here = _result(1, {"lift:lift_cube": 20}) | {"trained_on": "cuda"}  # trained there, reused here
+    assert ", trained on CUDA, scored on CPU; closed loop" in markdown(
+        SuiteBenchConfig(tasks=["lift"]), [scored_here]
+    )
     cpu = SuiteBenchConfig(tasks=["lift"], output_dir=tmp_path)
     cpu_command = cpu.train_run(0, tmp_path / "keyframe").command()
     assert "--policy.device=cpu" in cpu_command and "--num_workers=0" in cpu_command

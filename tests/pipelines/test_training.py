@@ -51,8 +51,9 @@ def test_an_interrupted_run_resumes_from_its_last_checkpoint(tmp_path):
 
 
 def test_a_finished_run_is_reused_only_with_the_options_it_was_trained_with(tmp_path):
-    """``reuse_or_clear`` compares the run's ``--policy.*``, ``--steps`` and ``--seed`` arguments with the saved
-    ``train_config.json``: the same options reuse the record, another option is a clear error and clears nothing."""
+    """``reuse_or_clear`` compares the run's ``--policy.*`` (but the device), ``--steps``, ``--batch_size`` and
+    ``--seed`` arguments with the saved ``train_config.json``: the same options reuse the record, another option is a
+    clear error and clears nothing."""
     from sigma_policy.configuration_sigma import PRESETS
 
     run = TrainRun(
@@ -71,6 +72,7 @@ def test_a_finished_run_is_reused_only_with_the_options_it_was_trained_with(tmp_
     (run.checkpoint / "config.json").write_text("{}")
     saved = {
         "steps": 6000,
+        "batch_size": 8,
         "seed": 0,
         "dataset": {"root": "/elsewhere"},  # not compared: a moved dataset is the same data
         "policy": {
@@ -95,6 +97,10 @@ def test_a_finished_run_is_reused_only_with_the_options_it_was_trained_with(tmp_
             other.reuse_or_clear(record, "suite")
     with pytest.raises(ValueError, match="--steps=6000"):
         TrainRun(**{**run.__dict__, "steps": 3000}).reuse_or_clear(record, "suite")
+    with pytest.raises(ValueError, match="--batch_size=8, this run asks for --batch_size=32"):
+        TrainRun(**{**run.__dict__, "batch_size": 32}).reuse_or_clear(record, "suite")
+    # Trained on a GPU machine, scored on a CPU one: the device is not an option of what was learned.
+    assert TrainRun(**{**run.__dict__, "device": "cuda"}).reuse_or_clear(record, "suite") == {"seconds": 60.0}
     # An option the saved run predates is compared at the value it was introduced with.
     newer = TrainRun(**{**run.__dict__, "extra_args": [*run.extra_args, "--policy.first_keyframe_weight=3"]})
     with pytest.raises(ValueError, match=r"--policy\.first_keyframe_weight=1\.0, this run asks for .*=3"):
