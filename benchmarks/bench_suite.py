@@ -22,8 +22,10 @@ into its own run directory (``runs/seed<S>_decay<D>_lr<LR>``).
     python -m benchmarks.bench_suite --seeds '[0,1]'                  # both seeds
     python -m benchmarks.bench_suite --preset small --lr 0.01 --schedule_steps 2000 --policy_args '[]'
                                                                       # the small preset's recipe, for comparison
-    python -m benchmarks.bench_suite --device cuda --workers 16 --output_dir outputs/bench_suite_gpu --publish false
-                                                                      # on a GPU (docs/gpu.md)
+    python -m benchmarks.bench_suite --device cuda --workers 16 --steps 3000 --batch_size 64 \
+        --output_dir outputs/bench_suite_gpu --publish false          # on a GPU (docs/gpu.md: 7 min of training)
+    python -m benchmarks.bench_suite --device cpu --steps 3000 --batch_size 64 \
+        --output_dir outputs/bench_suite_gpu --publish false          # score here a run trained on a GPU machine
 
 Budget: 6000 steps in bf16 autocast (``--policy.use_cpu_bf16_autocast``, a no-op on CPUs without native bf16)
 trained in 56 minutes on the 2-core AMD EPYC (2026-11-25), 60 with the yaw scan (2026-11-26); collection took 8
@@ -188,7 +190,7 @@ def markdown(cfg: SuiteBenchConfig, results: list[dict]) -> str:
         f"keyframes from {cfg.heldout_episodes} more per variation (seeds from 50000); 4 cameras at "
         f"{cfg.image_size}²; one multi-task policy, {' '.join(f'`{a}`' for a in cfg.preset_args)}, "
         f"{cfg.steps} `lerobot-train` steps × batch {cfg.batch_size}, peak learning rate {cfg.peak_lr:g} and its "
-        f"cosine decay over {cfg.decay_steps} steps, {trained_on(cfg, results)}; closed loop: `sigma-eval`, "
+        f"cosine decay over {cfg.decay_steps} steps, {devices_line(cfg, results)}; closed loop: `sigma-eval`, "
         f"{cfg.eval_episodes} episodes per variation (seeds from 100000), ≤ {cfg.max_keyframes} keyframes. "
         "Errors are medians over every keyframe with a goal at the last checkpoint; yaw is the mean absolute error "
         "of the yaw bin. One column (first table) and one row (second) per training seed.\n\n"
@@ -214,12 +216,12 @@ def markdown(cfg: SuiteBenchConfig, results: list[dict]) -> str:
     return head + "\n".join(lines + summary + per_task_lines(cfg, results)) + "\n"
 
 
-def trained_on(cfg: SuiteBenchConfig, results: list[dict]) -> str:
-    """Where the runs trained: ``--device``, or the device a reused run was trained on (a run trained on a GPU
-    machine and scored here with ``--device cpu``)."""
-    devices = dict.fromkeys(r.get("trained_on", cfg.device) for r in results) or {cfg.device: None}
-    where = "/".join(d.upper() for d in devices)
-    return where if where == cfg.device.upper() else f"trained on {where}, scored on {cfg.device.upper()}"
+def devices_line(cfg: SuiteBenchConfig, results: list[dict]) -> str:
+    """Where the runs trained and were scored: ``--device``, or "trained on CUDA, scored on CPU" for a run trained
+    on a GPU machine and reused here with ``--device cpu``."""
+    here = cfg.device.upper()
+    trained = "/".join(sorted({r.get("trained_on", cfg.device).upper() for r in results})) or here
+    return here if trained == here else f"trained on {trained}, scored on {here}"
 
 
 def per_task_lines(cfg: SuiteBenchConfig, results: list[dict]) -> list[str]:

@@ -82,8 +82,9 @@ class TrainRun:
 
     def check_same_options(self, train_config: Path) -> None:
         """Refuse to reuse or resume a run whose saved ``train_config.json`` disagrees with this run's
-        ``--policy.*`` (but the device), ``--steps``, ``--batch_size`` or ``--seed`` arguments (the output directory's name does not say how its run
-        was trained: a benchmark rerun with other ``--policy_args`` would otherwise trust the old checkpoint)."""
+        ``--policy.*`` (but the device), ``--steps``, ``--batch_size`` or ``--seed`` arguments (the output
+        directory's name does not say how its run was trained: a benchmark rerun with other ``--policy_args`` would
+        otherwise trust the old checkpoint)."""
         if not train_config.exists():
             return
         saved = json.loads(train_config.read_text())
