@@ -22,9 +22,9 @@ into its own run directory (``runs/seed<S>_decay<D>_lr<LR>``).
     python -m benchmarks.bench_suite --seeds '[0,1]'                  # both seeds
     python -m benchmarks.bench_suite --preset small --lr 0.01 --schedule_steps 2000 --policy_args '[]'
                                                                       # the small preset's recipe, for comparison
-    python -m benchmarks.bench_suite --device cuda --workers 16 --steps 3000 --batch_size 64 \
+    python -m benchmarks.bench_suite --preset gpu --device cuda --workers 16 --steps 3000 --batch_size 64 \
         --output_dir outputs/bench_suite_gpu --publish false          # on a GPU (docs/gpu.md: 7 min of training)
-    python -m benchmarks.bench_suite --device cpu --steps 3000 --batch_size 64 \
+    python -m benchmarks.bench_suite --preset gpu --device cpu --steps 3000 --batch_size 64 \
         --output_dir outputs/bench_suite_gpu --publish false          # score here a run trained on a GPU machine
 
 Budget: 6000 steps in bf16 autocast (``--policy.use_cpu_bf16_autocast``, a no-op on CPUs without native bf16)
@@ -109,9 +109,12 @@ class SuiteBenchConfig:
 
     def run_dir(self, seed: int) -> Path:
         """Where training seed ``seed`` of this schedule trains, is diagnosed and is evaluated (a batch other than
-        the suite's 8 is named: ``..._batch32``)."""
+        the suite's 8 and a preset other than ``suite`` are named: ``..._batch64_gpu``)."""
         batch = "" if self.batch_size == 8 else f"_batch{self.batch_size}"
-        return self.output_dir / "runs" / f"seed{seed}_decay{self.decay_steps}_lr{self.peak_lr:g}{batch}"
+        preset = "" if self.preset == "suite" else f"_{self.preset}"
+        return (
+            self.output_dir / "runs" / f"seed{seed}_decay{self.decay_steps}_lr{self.peak_lr:g}{batch}{preset}"
+        )
 
     def train_run(self, seed: int, train_root: Path) -> TrainRun:
         """The ``lerobot-train`` run of training seed ``seed`` on the dataset at ``train_root``."""

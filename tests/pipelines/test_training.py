@@ -5,6 +5,7 @@ from __future__ import annotations
 import json
 import os
 import shutil
+from pathlib import Path
 
 import pytest
 
@@ -108,24 +109,33 @@ def test_a_finished_run_is_reused_only_with_the_options_it_was_trained_with(tmp_
     assert run.checkpoint.is_dir()  # nothing cleared
 
 
+def _finished_run(
+    tmp_path, preset: str, steps: int, batch_size: int, seconds: float
+) -> tuple[TrainRun, Path]:
+    """A run of ``preset`` whose checkpoint and stage record exist (its ``train_config.json`` is the test's to
+    write), and that record."""
+    run = TrainRun(
+        dataset_root=tmp_path / "data",
+        output_dir=tmp_path / "train",
+        steps=steps,
+        batch_size=batch_size,
+        preset=preset,
+        extra_args=[f"--policy.scheduler_decay_steps={steps}"],
+    )
+    run.checkpoint.mkdir(parents=True)
+    (run.checkpoint / "config.json").write_text("{}")
+    record = tmp_path / "train_seconds.json"
+    record.write_text(json.dumps({"seconds": seconds}))
+    return run, record
+
+
 def test_a_preset_is_compared_by_the_values_it_fills(tmp_path):
     """``--policy.preset=suite`` reuses a run trained as ``small`` with the suite's options given one by one (the
     published suite runs), and refuses a ``small`` run that left one of them at its default, and a run trained with
     an option this run leaves at its default."""
     from sigma_policy.configuration_sigma import PRESETS
 
-    run = TrainRun(
-        dataset_root=tmp_path / "data",
-        output_dir=tmp_path / "train",
-        steps=6000,
-        batch_size=8,
-        preset="suite",
-        extra_args=["--policy.scheduler_decay_steps=6000"],
-    )
-    run.checkpoint.mkdir(parents=True)
-    (run.checkpoint / "config.json").write_text("{}")
-    record = tmp_path / "train_seconds.json"
-    record.write_text(json.dumps({"seconds": 60.0}))
+    run, record = _finished_run(tmp_path, "suite", steps=6000, batch_size=8, seconds=60.0)
     suite_options = {
         "per_task_bounds": True,
         "yaw_scan_px": 24,
@@ -154,3 +164,25 @@ def test_a_preset_is_compared_by_the_values_it_fills(tmp_path):
     ):
         run.reuse_or_clear(record, "suite")
     assert run.checkpoint.is_dir()  # nothing cleared
+
+
+def test_the_gpu_preset_reuses_the_suite_run_widened_by_hand(tmp_path):
+    """The ``gpu`` preset's measured run was trained as ``suite`` with the wider network given one by one
+    (docs/gpu.md "The gpu preset"): ``--policy.preset=gpu`` reuses it, and refuses ``suite``'s own network."""
+    from sigma_policy.configuration_sigma import PRESETS
+
+    run, record = _finished_run(tmp_path, "gpu", steps=3000, batch_size=64, seconds=425.0)
+    wider = {"im_channels": 32, "final_dim": 32, "attn_dim": 256, "attn_heads": 8, "num_fusion_layers": 4}
+    saved = {
+        "steps": 3000,
+        "seed": 0,
+        "batch_size": 64,
+        "policy": {"type": "sigma", "device": "cuda", "preset": "suite", **PRESETS["suite"], **wider},
+    }
+    saved["policy"]["scheduler_decay_steps"] = 3000
+    (run.checkpoint / "train_config.json").write_text(json.dumps(saved))
+    assert run.reuse_or_clear(record, "gpu") == {"seconds": 425.0}
+    saved["policy"] |= {k: PRESETS["suite"][k] for k in wider}
+    (run.checkpoint / "train_config.json").write_text(json.dumps(saved))
+    with pytest.raises(ValueError, match=r"this run's --policy\.preset=gpu means 32"):
+        run.reuse_or_clear(record, "gpu")

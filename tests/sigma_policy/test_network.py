@@ -43,6 +43,17 @@ def test_paper_parameter_count_matches_the_paper_within_one_percent():
     assert total == 38_259_614 and inference == 36_032_413
 
 
+def test_gpu_preset_is_the_suite_network_widened_to_the_measured_size():
+    # docs/gpu.md "The gpu preset": lerobot-train counted 7,597,415 learnable parameters, suite's network 1.6 M.
+    sizes = {}
+    for preset in ("suite", "gpu"):
+        cfg = SigmaConfig(preset=preset, device="cpu")
+        sizes[preset] = SigmaNetwork(
+            cfg.network_config(), lang_token_dim=384, lang_sentence_dim=384
+        ).num_parameters()
+    assert sizes == {"suite": 1_561_383, "gpu": 7_597_415}
+
+
 def test_paper_preset_with_default_minilm_dimensions_is_within_one_percent():
     cfg = SigmaConfig(preset="paper", device="cpu")
     net = SigmaNetwork(cfg.network_config(), lang_token_dim=384, lang_sentence_dim=384)
@@ -149,6 +160,16 @@ def test_config_presets_and_overrides():
         "attn_dim",
     )
     assert tuple(getattr(suite, f) for f in multi) == (True, 24, 3e-3, 6000, 64, 128)
+    # The gpu preset: the suite recipe with a wider network over a 3000-step decay (7.6 M parameters, 4.7x).
+    gpu = SigmaConfig(preset="gpu", device="cpu")
+    assert tuple(getattr(gpu, f) for f in multi) == (True, 24, 3e-3, 3000, 64, 256)
+    assert (gpu.im_channels, gpu.final_dim, gpu.attn_heads, gpu.attn_dim_head, gpu.num_fusion_layers) == (
+        32,
+        32,
+        8,
+        32,
+        4,
+    )
     assert (
         tuple(getattr(small, f) for f in multi[:2])
         == (False, 0)
