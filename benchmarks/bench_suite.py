@@ -16,7 +16,8 @@ docs/method.md §7.1: NutAssembly 15/80 over two training seeds against 2/80 wit
 151/360) and a peak learning rate of 3e-3 (``small``'s 1e-2 underfit on four tasks with its 2000-step decay and
 diverged with the decay stretched; docs/learning.md). The cosine decay is stretched over the whole run
 (``--policy.scheduler_decay_steps`` = ``--steps``) unless ``--schedule_steps`` says otherwise; each schedule trains
-into its own run directory (``runs/seed<S>_decay<D>_lr<LR>``).
+into its own run directory (``runs/seed<S>_decay<D>_lr<LR>``, then ``_batch<B>`` for a batch other than 8 and
+``_<preset>`` for a preset other than ``suite``).
 
     python -m benchmarks.bench_suite                                  # one training seed
     python -m benchmarks.bench_suite --seeds '[0,1]'                  # both seeds

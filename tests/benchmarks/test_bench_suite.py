@@ -57,9 +57,8 @@ def test_learning_rate_option_reaches_lerobot_train_and_the_table():
     wide = SuiteBenchConfig(tasks=["lift"], batch_size=32, steps=3000)
     assert wide.run_dir(0).name == "seed0_decay3000_lr0.003_batch32"  # not the batch-8 run's directory
     gpu = SuiteBenchConfig(tasks=["lift"], preset="gpu", batch_size=64, steps=3000)
-    assert (
-        gpu.run_dir(0).name == "seed0_decay3000_lr0.003_batch64_gpu"
-    )  # not the suite network's batch-64 run
+    # Not the suite network's batch-64 run:
+    assert gpu.run_dir(0).name == "seed0_decay3000_lr0.003_batch64_gpu"
     tuned = SuiteBenchConfig(tasks=["lift"], lr=1e-3)
     assert tuned.schedule_args == ["--policy.scheduler_decay_steps=6000", "--policy.optimizer_lr=0.001"]
 

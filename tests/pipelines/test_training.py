@@ -177,9 +177,15 @@ def test_the_gpu_preset_reuses_the_suite_run_widened_by_hand(tmp_path):
         "steps": 3000,
         "seed": 0,
         "batch_size": 64,
-        "policy": {"type": "sigma", "device": "cuda", "preset": "suite", **PRESETS["suite"], **wider},
+        "policy": {
+            "type": "sigma",
+            "device": "cuda",
+            "preset": "suite",
+            **PRESETS["suite"],
+            **wider,
+            "scheduler_decay_steps": 3000,
+        },
     }
-    saved["policy"]["scheduler_decay_steps"] = 3000
     (run.checkpoint / "train_config.json").write_text(json.dumps(saved))
     assert run.reuse_or_clear(record, "gpu") == {"seconds": 425.0}
     saved["policy"] |= {k: PRESETS["suite"][k] for k in wider}
