@@ -23,10 +23,13 @@ into its own run directory (``runs/seed<S>_decay<D>_lr<LR>``, then ``_batch<B>``
     python -m benchmarks.bench_suite --seeds '[0,1]'                  # both seeds
     python -m benchmarks.bench_suite --preset small --lr 0.01 --schedule_steps 2000 --policy_args '[]'
                                                                       # the small preset's recipe, for comparison
-    python -m benchmarks.bench_suite --preset gpu --device cuda --workers 16 --steps 3000 --batch_size 64 \
+    python -m benchmarks.bench_suite --preset gpu --device cuda --workers 16 \
         --output_dir outputs/bench_suite_gpu --publish false          # on a GPU (docs/gpu.md: 7 min of training)
-    python -m benchmarks.bench_suite --preset gpu --device cpu --steps 3000 --batch_size 64 \
+    python -m benchmarks.bench_suite --preset gpu --device cpu \
         --output_dir outputs/bench_suite_gpu --publish false          # score here a run trained on a GPU machine
+
+``--steps`` and ``--batch_size`` default to the budget the preset was measured at (``PRESET_BUDGETS``: 6000 steps
+at batch 8, ``gpu`` 3000 at batch 64).
 
 Budget: 6000 steps in bf16 autocast (``--policy.use_cpu_bf16_autocast``, a no-op on CPUs without native bf16)
 trained in 56 minutes on the 2-core AMD EPYC (2026-11-25), 60 with the yaw scan (2026-11-26); collection took 8
@@ -54,6 +57,11 @@ os.environ.setdefault("HF_HUB_OFFLINE", "1")
 # What the suite trains with beyond its preset: bf16 autocast on CPUs that have it (docs/learning.md "Training speed").
 SUITE_ARGS = ["--policy.use_cpu_bf16_autocast=true"]
 
+# The training budget each preset was measured at (`--steps`, `--batch_size` when not given): the CPU presets 6000
+# steps at batch 8 (docs/learning.md), `gpu` 3000 at batch 64, the length of its own decay (docs/gpu.md).
+PRESET_BUDGETS: dict[str, tuple[int, int]] = {"gpu": (3000, 64)}
+DEFAULT_BUDGET = (6000, 8)
+
 
 @dataclass
 class SuiteBenchConfig:
@@ -66,9 +74,10 @@ class SuiteBenchConfig:
     heldout_episodes: int = 5
     cameras: list[str] = field(default_factory=lambda: list(DEFAULT_CAMERAS))
     image_size: int = 64
-    # Training budget; checkpoints saved (and diagnosed) this many times per run.
-    steps: int = 6000
-    batch_size: int = 8
+    # Training budget; None: the preset's (PRESET_BUDGETS: 6000 × batch 8, `gpu` 3000 × 64). Checkpoints saved (and
+    # diagnosed) this many times per run.
+    steps: int | None = None
+    batch_size: int | None = None
     checkpoints: int = 4
     # One training run per seed.
     seeds: list[int] = field(default_factory=lambda: [0])
@@ -89,6 +98,11 @@ class SuiteBenchConfig:
     # Write benchmarks/results/suite.{md,json} (RESULTS.md includes them).
     publish: bool = True
     results_dir: Path | None = None
+
+    def __post_init__(self) -> None:
+        steps, batch_size = PRESET_BUDGETS.get(self.preset, DEFAULT_BUDGET)
+        self.steps = self.steps or steps
+        self.batch_size = self.batch_size or batch_size
 
     @property
     def decay_steps(self) -> int:

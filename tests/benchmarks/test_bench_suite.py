@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import draccus
+
 from benchmarks.bench_suite import SuiteBenchConfig, markdown
 
 
@@ -61,6 +63,17 @@ def test_learning_rate_option_reaches_lerobot_train_and_the_table():
     assert gpu.run_dir(0).name == "seed0_decay3000_lr0.003_batch64_gpu"
     tuned = SuiteBenchConfig(tasks=["lift"], lr=1e-3)
     assert tuned.schedule_args == ["--policy.scheduler_decay_steps=6000", "--policy.optimizer_lr=0.001"]
+
+
+def test_the_budget_defaults_to_the_presets():
+    suite = draccus.parse(SuiteBenchConfig, args=[])
+    assert (suite.steps, suite.batch_size, suite.decay_steps) == (6000, 8, 6000)
+    gpu = draccus.parse(SuiteBenchConfig, args=["--preset", "gpu"])  # what docs/gpu.md measured, not 6000 × 8
+    assert (gpu.steps, gpu.batch_size, gpu.decay_steps) == (3000, 64, 3000)
+    assert gpu.run_dir(0).name == "seed0_decay3000_lr0.003_batch64_gpu"
+    assert "--batch_size=64" in gpu.train_run(0, gpu.output_dir).command()
+    given = draccus.parse(SuiteBenchConfig, args=["--preset", "gpu", "--steps", "1500", "--batch_size", "32"])
+    assert (given.steps, given.batch_size, given.decay_steps) == (1500, 32, 1500)
 
 
 def test_device_option_reaches_lerobot_train_and_the_table(tmp_path):
