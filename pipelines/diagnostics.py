@@ -6,7 +6,10 @@ and is compared with the recorded one:
 
 * **translation** error, centimetres (Euclidean distance of the positions);
 * **rotation** error, degrees: the geodesic angle, and per extrinsic-xyz Euler axis (roll, pitch, yaw) the wrapped
-  difference of the gimbal-fixed angles that the rotation head classifies (``sigma_policy.rotation``);
+  difference of the gimbal-fixed angles that the rotation head classifies (``sigma_policy.rotation``), and the yaw
+  error modulo a half turn (``yaw_half_turn_deg_mean``): a parallel gripper closes across the same axis at yaws
+  180° apart, so a large yaw error with a small half-turn error is the other wrist side of the right grasp, and a
+  large half-turn error is the wrong grasp axis;
 * **gripper** and **collision** accuracy (the two binary heads).
 
 Errors are summarised (median, mean, 90th percentile, share within 1 cm / 2 cm / 10° / 20°) over the whole set and per
@@ -65,6 +68,7 @@ METRICS = (
     "roll_deg_mean",
     "pitch_deg_mean",
     "yaw_deg_mean",
+    "yaw_half_turn_deg_mean",
     "gripper_acc",
     "collision_acc",
 )
@@ -117,6 +121,7 @@ def action_errors(pred: np.ndarray, true: np.ndarray) -> dict[str, np.ndarray]:
     pred, true = np.asarray(pred, dtype=np.float64), np.asarray(true, dtype=np.float64)
     euler_p = _gimbal_fixed_euler(torch.from_numpy(pred[:, 3:7])).numpy()
     euler_t = _gimbal_fixed_euler(torch.from_numpy(true[:, 3:7])).numpy()
+    yaw = wrap_deg(euler_p[:, 2] - euler_t[:, 2])
     axes = np.abs(wrap_deg(euler_p - euler_t))
     return {
         "trans_cm": 100 * np.linalg.norm(pred[:, :3] - true[:, :3], axis=-1),
@@ -124,6 +129,7 @@ def action_errors(pred: np.ndarray, true: np.ndarray) -> dict[str, np.ndarray]:
         "roll_deg": axes[:, 0],
         "pitch_deg": axes[:, 1],
         "yaw_deg": axes[:, 2],
+        "yaw_half_turn_deg": np.abs((yaw + 90.0) % 180.0 - 90.0),
         "gripper_ok": (pred[:, 7] > 0.5) == (true[:, 7] > 0.5),
         "collision_ok": (pred[:, 8] > 0.5) == (true[:, 8] > 0.5),
     }
@@ -148,6 +154,7 @@ def summarise_errors(err: dict[str, np.ndarray]) -> dict[str, float]:
         "roll_deg_mean": float(np.mean(err["roll_deg"])),
         "pitch_deg_mean": float(np.mean(err["pitch_deg"])),
         "yaw_deg_mean": float(np.mean(err["yaw_deg"])),
+        "yaw_half_turn_deg_mean": float(np.mean(err["yaw_half_turn_deg"])),
         "gripper_acc": float(np.mean(err["gripper_ok"])),
         "collision_acc": float(np.mean(err["collision_ok"])),
     }

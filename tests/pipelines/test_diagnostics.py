@@ -30,20 +30,31 @@ def _action(xyz, euler_deg, grip=1.0, coll=0.0) -> np.ndarray:
 
 
 def test_action_errors_measure_each_head_in_its_unit():
-    true = np.stack([_action([0.1, 0.0, 0.9], [180, 0, 30]), _action([0.0, 0.2, 1.0], [180, 0, -170])])
+    true = np.stack(
+        [
+            _action([0.1, 0.0, 0.9], [180, 0, 30]),
+            _action([0.0, 0.2, 1.0], [180, 0, -170]),
+            _action([0.0, 0.2, 1.0], [180, 0, 80]),
+        ]
+    )
     pred = np.stack(
         [
-            _action([0.1, 0.03, 0.9], [180, 0, 40], grip=0.0),  # 3 cm off, 10 deg of yaw, gripper wrong
-            _action([0.0, 0.2, 1.0], [-180, 0, 170], coll=1.0),  # exact pose (angles wrap), collision wrong
+            # 3 cm off, 10 deg of yaw, gripper wrong
+            _action([0.1, 0.03, 0.9], [180, 0, 40], grip=0.0),
+            # 20 deg of yaw (angles wrap), collision wrong
+            _action([0.0, 0.2, 1.0], [-180, 0, 170], coll=1.0),
+            # the same grasp axis, the other wrist side: 175 deg of yaw, 5 modulo a half turn
+            _action([0.0, 0.2, 1.0], [180, 0, -95]),
         ]
     )
     err = action_errors(pred, true)
-    np.testing.assert_allclose(err["trans_cm"], [3.0, 0.0], atol=1e-6)
-    np.testing.assert_allclose(err["yaw_deg"], [10.0, 20.0], atol=1e-4)
-    np.testing.assert_allclose(err["rot_deg"], [10.0, 20.0], atol=1e-4)
-    np.testing.assert_allclose(err["roll_deg"], [0.0, 0.0], atol=1e-4)
-    assert err["gripper_ok"].tolist() == [False, True]
-    assert err["collision_ok"].tolist() == [True, False]
+    np.testing.assert_allclose(err["trans_cm"], [3.0, 0.0, 0.0], atol=1e-6)
+    np.testing.assert_allclose(err["yaw_deg"], [10.0, 20.0, 175.0], atol=1e-4)
+    np.testing.assert_allclose(err["yaw_half_turn_deg"], [10.0, 20.0, 5.0], atol=1e-4)
+    np.testing.assert_allclose(err["rot_deg"], [10.0, 20.0, 175.0], atol=1e-4)
+    np.testing.assert_allclose(err["roll_deg"], [0.0, 0.0, 0.0], atol=1e-4)
+    assert err["gripper_ok"].tolist() == [False, True, True]
+    assert err["collision_ok"].tolist() == [True, False, True]
 
 
 def test_summaries_count_the_tails_beyond_each_threshold():
@@ -51,7 +62,7 @@ def test_summaries_count_the_tails_beyond_each_threshold():
     err = {
         "trans_cm": np.array([0.5, 1.5, 2.5, 9.0]),
         "rot_deg": np.array([5.0, 15.0, 25.0, 170.0]),
-        **{k: np.zeros(n) for k in ("roll_deg", "pitch_deg", "yaw_deg")},
+        **{k: np.zeros(n) for k in ("roll_deg", "pitch_deg", "yaw_deg", "yaw_half_turn_deg")},
         "gripper_ok": np.ones(n, bool),
         "collision_ok": np.ones(n, bool),
     }
