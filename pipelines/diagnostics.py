@@ -121,7 +121,6 @@ def action_errors(pred: np.ndarray, true: np.ndarray) -> dict[str, np.ndarray]:
     pred, true = np.asarray(pred, dtype=np.float64), np.asarray(true, dtype=np.float64)
     euler_p = _gimbal_fixed_euler(torch.from_numpy(pred[:, 3:7])).numpy()
     euler_t = _gimbal_fixed_euler(torch.from_numpy(true[:, 3:7])).numpy()
-    yaw = wrap_deg(euler_p[:, 2] - euler_t[:, 2])
     axes = np.abs(wrap_deg(euler_p - euler_t))
     return {
         "trans_cm": 100 * np.linalg.norm(pred[:, :3] - true[:, :3], axis=-1),
@@ -129,7 +128,7 @@ def action_errors(pred: np.ndarray, true: np.ndarray) -> dict[str, np.ndarray]:
         "roll_deg": axes[:, 0],
         "pitch_deg": axes[:, 1],
         "yaw_deg": axes[:, 2],
-        "yaw_half_turn_deg": np.abs((yaw + 90.0) % 180.0 - 90.0),
+        "yaw_half_turn_deg": np.minimum(axes[:, 2], 180.0 - axes[:, 2]),
         "gripper_ok": (pred[:, 7] > 0.5) == (true[:, 7] > 0.5),
         "collision_ok": (pred[:, 8] > 0.5) == (true[:, 8] > 0.5),
     }
