@@ -206,6 +206,15 @@ PRESETS["gpu"] = PRESETS["suite"] | {
 ACTION_DIM = KEYFRAME_ACTION_DIM
 # A 1 m box over robosuite's table (x toward the robot's front, z up; the table top is at z = 0.8 m).
 DEFAULT_SCENE_BOUNDS = [-0.4, -0.55, 0.75, 0.6, 0.5, 1.75]
+# robosuite's Panda in its grip site's frame (z from the palm to the fingertips, x the closing axis): the hand body
+# (22 cm along x, 6.4 cm across, its underside 2.5 cm behind the site) and link 7 (12.4 cm across), from 3 cm
+# behind the site to 1 m behind it. For ``hand_mask_box``.
+PANDA_HAND_BOX = [-0.11, -0.065, -1.0, 0.11, 0.065, -0.03]
+
+
+def _is_box(box: list[float]) -> bool:
+    """``(x_lo, y_lo, z_lo, x_hi, y_hi, z_hi)`` with every high above its low."""
+    return len(box) == 6 and all(hi > lo for lo, hi in zip(box[:3], box[3:], strict=True))
 
 
 @PreTrainedConfig.register_subclass("sigma")
@@ -270,6 +279,12 @@ class SigmaConfig(PreTrainedConfig):
     # e.g. PickPlace's bins, whose walls hide the bread and the can from horizontal views (docs/learning.md). 0 =
     # RVT's horizontal side views (every preset: 45° and 30° both fitted and scored worse on PickPlace).
     side_tilt_deg: float = 0.0
+    # Cloud points inside this box of the grip site's frame (``observation.state``'s pose; x_lo, y_lo, z_lo, x_hi,
+    # y_hi, z_hi in metres) are dropped before rendering, in training and inference alike. The site's z axis points
+    # from the palm to the fingertips, so PANDA_HAND_BOX is robosuite's Panda hand and the arm above it, which in
+    # the top view hide whatever the fingers are over (docs/learning.md, "The hand hides what it is over"); the
+    # fingers stay. None = every point kept (RVT).
+    hand_mask_box: list[float] | None = None
     # Rotation-equivariant yaw scores (sigma_policy/yaw_scan.py): side (pixels) of the top-view crop around the
     # keyframe position that is turned to every yaw bin and scored by one CNN (0 = off); its channels; the training
     # jitter (pixels, uniform per axis) of the crop's centre about the target's projection, standing in for the
@@ -354,10 +369,7 @@ class SigmaConfig(PreTrainedConfig):
         for name, value in PRESETS[self.preset].items():
             if getattr(self, name) is None:
                 setattr(self, name, value)
-        if self.scene_bounds is not None and (
-            len(self.scene_bounds) != 6
-            or any(hi <= lo for lo, hi in zip(self.scene_bounds[:3], self.scene_bounds[3:], strict=True))
-        ):
+        if self.scene_bounds is not None and not _is_box(self.scene_bounds):
             raise ValueError(
                 f"policy.scene_bounds must be (xmin, ymin, zmin, xmax, ymax, zmax), got {self.scene_bounds}"
             )
@@ -368,8 +380,12 @@ class SigmaConfig(PreTrainedConfig):
         if not self.first_keyframe_weight > 0.0:
             raise ValueError(f"policy.first_keyframe_weight must be > 0, got {self.first_keyframe_weight}")
         for instruction, box in self.instruction_bounds.items():
-            if len(box) != 6 or any(hi <= lo for lo, hi in zip(box[:3], box[3:], strict=True)):
+            if not _is_box(box):
                 raise ValueError(f"policy.instruction_bounds[{instruction!r}] must be a box of 6, got {box}")
+        if self.hand_mask_box is not None and not _is_box(self.hand_mask_box):
+            raise ValueError(
+                f"policy.hand_mask_box must be (x_lo, y_lo, z_lo, x_hi, y_hi, z_hi), got {self.hand_mask_box}"
+            )
         self.network_config()  # validates the architecture numbers early
 
     # ------------------------------------------------------------------ LeRobot hooks

@@ -41,7 +41,13 @@ from sigma_policy.configuration_sigma import SigmaConfig
 from sigma_policy.contrastive import contrastive_losses, instruction_ids
 from sigma_policy.heatmap import gaussian_heatmaps, heatmap_to_cube_point
 from sigma_policy.network import NetworkOutput, SigmaNetwork
-from sigma_policy.pointcloud import bounds_mask, cube_to_world, depth_to_world_points, world_to_cube
+from sigma_policy.pointcloud import (
+    bounds_mask,
+    cube_to_world,
+    depth_to_world_points,
+    drop_in_frame_box,
+    world_to_cube,
+)
 from sigma_policy.renderer import VirtualViewRenderer
 from sigma_policy.rotation import bins_to_quat, quat_to_bins, quat_to_matrix
 from sigma_policy.text_encoder import make_text_encoder
@@ -442,7 +448,7 @@ class SigmaPolicy(PreTrainedPolicy):
         return instruction_ids(instructions, device=device) if cfg.mask_same_instruction else None
 
     def _cloud(self, batch: dict[str, Any], t: int) -> _Cloud:
-        """Fused world-frame point cloud of all cameras at frame ``t``."""
+        """Fused world-frame point cloud of all cameras at frame ``t``, less the hand with ``hand_mask_box``."""
         scale = 1 / MM_PER_M if self.config.depth_unit == "mm" else 1.0
         points, colors = [], []
         for cam in self.cameras:
@@ -459,7 +465,13 @@ class SigmaPolicy(PreTrainedPolicy):
                 )
             points.append(depth_to_world_points(depth, K, E).flatten(1, 2))
             colors.append(rgb.flatten(2).transpose(1, 2))
-        return _Cloud(points=torch.cat(points, 1), colors=torch.cat(colors, 1).clamp(0, 1))
+        cloud = torch.cat(points, 1)
+        if self.config.hand_mask_box is not None:  # the hand and the arm above it, from the frame's own state
+            state = self._take(batch, OBS_STATE, t, 1).float().to(cloud.device)
+            cloud = drop_in_frame_box(
+                cloud, state[:, :3], quat_to_matrix(state[:, 3:7]), self.config.hand_mask_box
+            )
+        return _Cloud(points=cloud, colors=torch.cat(colors, 1).clamp(0, 1))
 
     @staticmethod
     def _cloud_box(points: Tensor, bounds: Tensor) -> Tensor:

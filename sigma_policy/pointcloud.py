@@ -24,6 +24,7 @@ __all__ = [
     "cube_to_world",
     "depth_to_camera_points",
     "depth_to_world_points",
+    "drop_in_frame_box",
     "fuse_cameras",
     "world_to_cube",
 ]
@@ -74,6 +75,17 @@ def fuse_cameras(points: Tensor, rgb: Tensor) -> tuple[Tensor, Tensor]:
     if rgb.shape != (B, C, 3, H, W):
         raise ValueError(f"rgb must be (B, C, 3, H, W) = {(B, C, 3, H, W)}, got {tuple(rgb.shape)}")
     return points.reshape(B, C * H * W, 3), rgb.permute(0, 1, 3, 4, 2).reshape(B, C * H * W, 3)
+
+
+def drop_in_frame_box(points: Tensor, origin: Tensor, axes: Tensor, box: Sequence[float]) -> Tensor:
+    """Points ``(B, N, 3)`` with those inside ``box`` = ``(x_lo, y_lo, z_lo, x_hi, y_hi, z_hi)`` of a per-sample
+    frame (origin ``(B, 3)``, axes the columns of ``(B, 3, 3)``) set to NaN, which :func:`bounds_mask` rejects."""
+    if len(box) != 6:
+        raise ValueError(f"box must be (x_lo, y_lo, z_lo, x_hi, y_hi, z_hi), got {list(box)}")
+    b = torch.as_tensor(box, dtype=points.dtype, device=points.device)
+    local = torch.einsum("bnj,bji->bni", points - origin[:, None].to(points), axes.to(points))  # R^T (p - o)
+    inside = ((local >= b[:3]) & (local <= b[3:])).all(-1)
+    return torch.where(inside[..., None], torch.full_like(points, float("nan")), points)
 
 
 def _bounds_tensor(bounds: Tensor | Sequence[float], like: Tensor) -> Tensor:

@@ -16,6 +16,7 @@ from lerobot.policies.factory import make_policy, make_pre_post_processors
 from sigma_policy.configuration_sigma import SigmaConfig
 from sigma_policy.modeling_sigma import SigmaPolicy
 from sigma_policy.pointcloud import world_to_cube
+from sigma_policy.rotation import quat_to_matrix
 from tests.sigma_policy.tiny_dataset import BOUNDS, write_tiny_keyframe_dataset
 
 FAST = {"preset": "small", "img_size": 32, "patch_size": 8, "attn_dim": 64, "attn_heads": 2}
@@ -621,3 +622,25 @@ def test_tilted_side_views_render_target_and_predict_in_one_geometry(tiny_root, 
     policy.eval()
     action = post(policy.select_action(pre(single_observation(tiny_root, 1))))
     assert action.shape == (1, 9) and torch.isfinite(action).all()
+
+
+def test_hand_mask_drops_the_points_at_each_frames_own_grip_site(tiny_root):
+    """With ``hand_mask_box`` the current and the goal frame's clouds each lose exactly the points inside the box
+    around that frame's own grip site (``observation.state``), in training and at inference alike."""
+    box = [-0.15, -0.15, -0.15, 0.15, 0.15, 0.15]
+    _, plain, pre, _, ds = build(tiny_root)
+    _, masked, *_ = build(tiny_root, hand_mask_box=box)
+    batch = pre(training_batch(ds, [0, 1, 2]))
+    state = batch["observation.state"].float()
+    assert not torch.allclose(state[:, 0, :3], state[:, 1, :3])  # the goal frame's hand is elsewhere
+    for t in (0, 1):
+        full, kept = plain._cloud(batch, t).points, masked._cloud(batch, t).points
+        local = torch.einsum("bnj,bji->bni", full - state[:, t, None, :3], quat_to_matrix(state[:, t, 3:7]))
+        inside = (local.abs() <= 0.15).all(-1)
+        assert inside.any() and (~inside & torch.isfinite(full).all(-1)).any()
+        assert torch.isnan(kept[inside]).all()
+        torch.testing.assert_close(kept[~inside], full[~inside], equal_nan=True)
+    obs = pre(single_observation(tiny_root, 1))
+    assert torch.isnan(masked.input_cloud(obs)[0]).sum() > torch.isnan(plain.input_cloud(obs)[0]).sum()
+    with pytest.raises(ValueError, match="hand_mask_box"):
+        SigmaConfig(hand_mask_box=[0.1, 0.1, 0.1, 0.0, 0.2, 0.2])

@@ -7,15 +7,18 @@ import numpy as np
 import pytest
 import torch
 
+from sigma_policy.configuration_sigma import PANDA_HAND_BOX
 from sigma_policy.pointcloud import (
     bounds_mask,
     cube_to_world,
     depth_to_camera_points,
     depth_to_world_points,
+    drop_in_frame_box,
     fuse_cameras,
     world_to_cube,
 )
 from sigma_policy.renderer import VIEW_NAMES, VirtualViewRenderer
+from sigma_policy.rotation import quat_to_matrix
 
 BOUNDS = torch.tensor([-0.4, -0.5, 0.75, 0.4, 0.5, 1.35])
 
@@ -80,9 +83,11 @@ def test_fuse_crop_and_cube_mapping() -> None:
 
 @pytest.fixture(scope="module")
 def lift_frame() -> dict:
+    import mujoco
     import robosuite
     from robosuite.utils import camera_utils as cu
 
+    from sigma_data.record import grip_site_pose
     from sigma_data.suite import close_env
 
     np.random.seed(0)  # robosuite draws the cube placement from the global numpy RNG
@@ -99,17 +104,27 @@ def lift_frame() -> dict:
     sim.forward()
     H = W = 96
     frame = {"depth": [], "rgb": [], "K": [], "E": []}
-    for cam in ("agentview", "frontview", "birdview", "sideview"):
+    cams = ("agentview", "frontview", "birdview", "sideview")
+    for cam in cams:
         rgb, depth = sim.render(camera_name=cam, height=H, width=W, depth=True)
         frame["rgb"].append(torch.from_numpy(rgb[::-1].copy()).permute(2, 0, 1).float() / 255)
         frame["depth"].append(torch.from_numpy(cu.get_real_depth_map(sim, depth[::-1].copy())).float())
         frame["K"].append(torch.from_numpy(cu.get_camera_intrinsic_matrix(sim, cam, H, W)).float())
         frame["E"].append(torch.from_numpy(cu.get_camera_extrinsic_matrix(sim, cam)).float())
+    # MuJoCo's segmentation (object type, id) per pixel, in the same rows as the RGB-D images
+    seg = [sim.render(camera_name=c, height=H, width=W, segmentation=True)[::-1] for c in cams]
+    geom_body = sim.model._model.geom_bodyid
+    frame["body"] = torch.from_numpy(
+        np.stack([np.where(s[..., 0] == mujoco.mjtObj.mjOBJ_GEOM, geom_body[s[..., 1]], -1) for s in seg])
+    )
+    frame["body_names"] = [sim.model.body_id2name(i) for i in range(sim.model.nbody)]
+    pos, quat = grip_site_pose(env)
+    frame["site_pos"], frame["site_quat"] = torch.from_numpy(pos).float(), torch.from_numpy(quat).float()
     frame["cube_pos"] = torch.from_numpy(np.array(sim.data.body_xpos[env.cube_body_id])).float()
     frame["cube_rot"] = torch.from_numpy(np.array(sim.data.body_xmat[env.cube_body_id]).reshape(3, 3)).float()
     frame["cube_half"] = torch.tensor(np.asarray(env.cube.size, dtype=np.float32))
     close_env(env)
-    return {k: torch.stack(v) if isinstance(v, list) else v for k, v in frame.items()}
+    return {k: torch.stack(v) if k in ("rgb", "depth", "K", "E") else v for k, v in frame.items()}
 
 
 def test_real_lift_cloud_renders_cube_where_it_is(lift_frame: dict) -> None:
@@ -136,3 +151,38 @@ def test_real_lift_cloud_renders_cube_where_it_is(lift_frame: dict) -> None:
         local = (xyz_world - lift_frame["cube_pos"]) @ lift_frame["cube_rot"]  # in the (yawed) cube's frame
         surface_dist = (local.abs() - lift_frame["cube_half"]).amax(-1)  # 0 on the box surface
         assert surface_dist.abs().max() < 0.003, (name, float(surface_dist.abs().max()))
+
+
+def test_drop_in_frame_box_uses_the_frame_axes() -> None:
+    """A box in a frame turned 90° about z and moved: points inside it (in that frame) become NaN, others stay."""
+    axes = torch.tensor([[0.0, -1.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, 1.0]])  # frame x = world y
+    origin = torch.tensor([1.0, 2.0, 3.0])
+    pts = origin + torch.tensor(
+        [[0.0, 0.5, 0.0], [0.5, 0.0, 0.0], [0.0, 0.0, 0.0]]
+    )  # frame x +0.5, frame y -0.5
+    out = drop_in_frame_box(pts[None], origin[None], axes[None], [0.4, -0.1, -0.1, 0.6, 0.1, 0.1])[0]
+    assert torch.isnan(out[0]).all() and torch.equal(out[1:], pts[1:])
+    with pytest.raises(ValueError, match="x_lo"):
+        drop_in_frame_box(pts[None], origin[None], axes[None], [0.0, 1.0])
+
+
+def test_panda_hand_box_drops_the_real_hand_and_nothing_else(lift_frame: dict) -> None:
+    """On a real robosuite Lift frame, ``PANDA_HAND_BOX`` in the grip site's frame holds the Panda hand and link
+    7 (by MuJoCo's segmentation of the four cameras) and none of the cube's or the table's points."""
+    world = depth_to_world_points(lift_frame["depth"], lift_frame["K"], lift_frame["E"]).reshape(1, -1, 3)
+    axes = quat_to_matrix(lift_frame["site_quat"])[None]
+    kept = drop_in_frame_box(world, lift_frame["site_pos"][None], axes, PANDA_HAND_BOX)[0]
+    dropped = torch.isnan(kept).all(-1) & torch.isfinite(world[0]).all(-1)
+    names = lift_frame["body_names"]
+    body = lift_frame["body"].reshape(-1)
+
+    def share(*parts: str) -> tuple[float, int]:
+        ids = [i for i, n in enumerate(names) if n and any(n.endswith(p) for p in parts)]
+        of = torch.isin(body, torch.tensor(ids))
+        return float(dropped[of].float().mean()), int(of.sum())
+
+    hand, n_hand = share("right_gripper", "link7")
+    assert n_hand > 50 and hand > 0.9, (hand, n_hand)
+    for part in ("cube_main", "table"):
+        frac, n = share(part)
+        assert n > 20 and frac == 0.0, (part, frac, n)
