@@ -1,14 +1,21 @@
-"""Which objects can each virtual view see? Pixels per object and view, with horizontal or tilted side views.
+"""Which objects can each virtual view see? Pixels per object and view, with horizontal or tilted side views,
+at the start frame or later keyframes, with or without the hand's points.
 
-A policy can only tell the objects apart where its views show them. For the start frame of every scene a
-dataset recorded under several instructions (PickPlace: the same scene with "milk", "bread", "cereal", "can"),
-the scene is rebuilt in robosuite from its collection seed, the frame's camera cloud is rendered as the policy
-renders it (its box, image size and splat radius), once per side-view tilt (sigma_policy/views.py), and a pixel
-counts for an object when the point it shows lies inside that object's bounding box (from its collision geometry,
+A policy can only tell the objects apart where its views show them. For every scene a dataset recorded under
+several instructions (PickPlace: the same scene with "milk", "bread", "cereal", "can"), the scene is rebuilt in
+robosuite from its collection seed, and for each instruction the named object is counted in frame ``f`` (of
+``frames``) of that instruction's episode: 0 is the start frame (the same for every instruction), 1 the hand at the
+first keyframe (above the object), 2 at the second (lowered to the grasp point, open). The objects do not move
+before the grasp, so their rebuilt geometry holds there. The frame's camera cloud is rendered as the policy renders
+it (its box, image size, splat radius and ``hand_mask_box``), once per side-view tilt (sigma_policy/views.py) and per
+entry of ``hand_masks`` (true: also without the points inside PANDA_HAND_BOX, the Panda hand), and a pixel counts
+for an object when the point it shows lies inside that object's bounding box (from its collision geometry,
 ``TaskSpec.points``; points within ``floor_clear_m`` of the object's bottom are left out, so the floor under it does
-not count). docs/learning.md ("PickPlace: the side views cannot see the bread or the can") reads its table:
+not count). docs/learning.md reads its tables ("PickPlace: the side views cannot see the bread or the can"; "The
+hand hides what it is over"):
 
     python -m benchmarks.bench_visibility --checkpoint CKPT --tilts '[0,45]' --scenes 8
+    python -m benchmarks.bench_visibility --checkpoint CKPT --frames '[0,1,2]' --hand_masks '[false,true]'
 
 Any sigma checkpoint trained on the dataset will do: only its cameras, boxes and renderer settings are used.
 """
@@ -25,8 +32,10 @@ import torch
 
 from pipelines.diagnostics import DiagnoseConfig, keyframe_sets
 from pipelines.instruction_swap import swap_scenes
-from sigma_policy.pointcloud import bounds_mask, cube_to_world, world_to_cube
+from sigma_policy.configuration_sigma import PANDA_HAND_BOX
+from sigma_policy.pointcloud import bounds_mask, cube_to_world, drop_in_frame_box, world_to_cube
 from sigma_policy.renderer import VIEW_NAMES, VirtualViewRenderer
+from sigma_policy.rotation import quat_to_matrix
 
 
 @dataclass
@@ -36,6 +45,11 @@ class VisibilityConfig:
     checkpoint: Path | None = None  # a sigma pretrained_model directory trained on the dataset
     task: str = "pick_place"  # a task whose variations name objects (``TaskSpec.points``)
     tilts: list[float] = field(default_factory=lambda: [0.0, 45.0])  # side-view tilts to compare (degrees)
+    # Frames of each instruction's episode counted: 0 the start, 1 the first keyframe (above the object), 2 the grasp.
+    frames: list[int] = field(default_factory=lambda: [0])
+    # false: the cloud as the checkpoint renders it (its own hand_mask_box, none in every preset); true: also without
+    # the points inside PANDA_HAND_BOX (the Panda hand and the arm above it).
+    hand_masks: list[bool] = field(default_factory=lambda: [False])
     scenes: int = 8  # training scenes counted (the first of the keyframe dataset)
     margin_m: float = 0.005  # the objects' boxes are grown by this much
     floor_clear_m: float = 0.005  # points this close above an object's bottom are not counted (the floor)
@@ -75,27 +89,29 @@ def main(cfg: VisibilityConfig) -> dict:
         t: VirtualViewRenderer(pcfg.img_size, pcfg.render_radius_px, side_tilt_deg=t) for t in cfg.tilts
     }
     names = [v.name for v in spec.variations]
-    counts = {t: {n: [] for n in names} for t in cfg.tilts}
+    variants = [(t, f, h) for t in cfg.tilts for f in cfg.frames for h in cfg.hand_masks]
+    counts = {v: {n: [] for n in names} for v in variants}
     env = SigmaRobosuiteEnv(f"{cfg.task}:{names[0]}", cameras=("agentview",), image_size=32)
     try:
         for scene in scenes:
             env.reset(seed=scene.seed)
-            item = kf.dataset[scene.rows[0]]
-            obs = {k: v[None] for k, v in item.items() if k.startswith("observation.")}
-            with torch.inference_mode():
-                points, colors, bounds = policy.input_cloud(pre(obs | {"task": [scene.instructions[0]]}))
-            bounds = bounds[0]
-            mask = bounds_mask(points, bounds)
-            cube = torch.where(mask[..., None], world_to_cube(points, bounds), torch.zeros_like(points))
             objects = {n: spec.points(env.env, get_variation(spec, n)) for n in names}
-            for tilt, renderer in renderers.items():
-                with torch.inference_mode():
-                    views = renderer(cube, colors, mask)[0].float()  # (V, C, H, W)
-                shown = views[:, :3].permute(0, 2, 3, 1).reshape(1, -1, 3)
-                world = cube_to_world(shown, bounds).reshape(len(VIEW_NAMES), -1, 3).cpu().numpy()
-                filled = (views[:, 6] > -1).reshape(len(VIEW_NAMES), -1).cpu().numpy()
-                for n, pts in objects.items():
-                    counts[tilt][n].append(object_pixels(world, filled, pts, cfg.margin_m, cfg.floor_clear_m))
+            for row, instruction, name in zip(scene.rows, scene.instructions, scene.variations, strict=True):
+                for frame in cfg.frames:
+                    item = kf.dataset[row + frame]
+                    obs = {k: v[None] for k, v in item.items() if k.startswith("observation.")}
+                    with torch.inference_mode():
+                        points, colors, bounds = policy.input_cloud(pre(obs | {"task": [instruction]}))
+                    state = item["observation.state"][None].float()
+                    for hand in cfg.hand_masks:
+                        kept = points
+                        if hand:
+                            axes = quat_to_matrix(state[:, 3:7])
+                            kept = drop_in_frame_box(points, state[:, :3], axes, PANDA_HAND_BOX)
+                        for tilt, renderer in renderers.items():
+                            world, filled = _rendered(renderer, kept, colors, bounds[0])
+                            px = object_pixels(world, filled, objects[name], cfg.margin_m, cfg.floor_clear_m)
+                            counts[(tilt, frame, hand)][name].append(px)
     finally:
         env.close()
     report = {
@@ -105,7 +121,8 @@ def main(cfg: VisibilityConfig) -> dict:
         "img_size": pcfg.img_size,
         "views": list(VIEW_NAMES),
         "mean_pixels": {
-            str(t): {n: np.mean(c, 0).round(1).tolist() for n, c in per.items()} for t, per in counts.items()
+            _label(*v): {n: np.mean(c, 0).round(1).tolist() for n, c in per.items()}
+            for v, per in counts.items()
         },
     }
     output = cfg.output or Path(cfg.checkpoint).parent / "visibility.json"
@@ -114,15 +131,33 @@ def main(cfg: VisibilityConfig) -> dict:
     return report
 
 
+def _rendered(
+    renderer: VirtualViewRenderer, points: torch.Tensor, colors: torch.Tensor, bounds: torch.Tensor
+):
+    """World point ``(V, P, 3)`` each pixel of each view shows, and which pixels show one ``(V, P)``."""
+    mask = bounds_mask(points, bounds)
+    cube = torch.where(mask[..., None], world_to_cube(points, bounds), torch.zeros_like(points))
+    with torch.inference_mode():
+        views = renderer(cube, colors, mask)[0].float()  # (V, C, H, W)
+    shown = views[:, :3].permute(0, 2, 3, 1).reshape(1, -1, 3)
+    world = cube_to_world(shown, bounds).reshape(len(VIEW_NAMES), -1, 3).cpu().numpy()
+    return world, (views[:, 6] > -1).reshape(len(VIEW_NAMES), -1).cpu().numpy()
+
+
+def _label(tilt: float, frame: int, hand: bool) -> str:
+    side = "horizontal" if float(tilt) == 0 else f"tilted {float(tilt):g}°"
+    return f"{side}, frame {frame}" + (", hand dropped" if hand else "")
+
+
 def table(report: dict) -> str:
-    head = "| side views | object | " + " | ".join(report["views"]) + " |"
+    head = "| side views, frame | object | " + " | ".join(report["views"]) + " |"
     lines = [head, "|" + "---|" * (len(report["views"]) + 2)]
-    for tilt, per in report["mean_pixels"].items():
-        label = "horizontal" if float(tilt) == 0 else f"tilted {float(tilt):g}°"
+    for label, per in report["mean_pixels"].items():
         for name, px in per.items():
             lines.append(f"| {label} | {name} | " + " | ".join(f"{p:.1f}" for p in px) + " |")
     lines.append(
-        f"\n{report['task']}: mean pixels per {report['img_size']}² view over {report['scenes']} training scenes"
+        f"\n{report['task']}: mean pixels per {report['img_size']}² view over {report['scenes']} training scenes "
+        "(each object in its own instruction's episode)"
     )
     return "\n".join(lines)
 
