@@ -283,8 +283,10 @@ class SigmaConfig(PreTrainedConfig):
     # y_hi, z_hi in metres) are dropped before rendering, in training and inference alike. The site's z axis points
     # from the palm to the fingertips, so PANDA_HAND_BOX is robosuite's Panda hand and the arm above it, which in
     # the top view hide whatever the fingers are over (docs/learning.md, "The hand hides what it is over"); the
-    # fingers stay. None = every point kept (RVT).
+    # fingers stay. None = every point kept (RVT). ``hand_mask_views``: "all" drops them from the cloud; "top" only
+    # from the top view, so the side views still show where the hand is.
     hand_mask_box: list[float] | None = None
+    hand_mask_views: str = "all"
     # Rotation-equivariant yaw scores (sigma_policy/yaw_scan.py): side (pixels) of the top-view crop around the
     # keyframe position that is turned to every yaw bin and scored by one CNN (0 = off); its channels; the training
     # jitter (pixels, uniform per axis) of the crop's centre about the target's projection, standing in for the
@@ -382,6 +384,8 @@ class SigmaConfig(PreTrainedConfig):
         for instruction, box in self.instruction_bounds.items():
             if not _is_box(box):
                 raise ValueError(f"policy.instruction_bounds[{instruction!r}] must be a box of 6, got {box}")
+        if self.hand_mask_views not in ("all", "top"):
+            raise ValueError(f"policy.hand_mask_views must be 'all' or 'top', got {self.hand_mask_views!r}")
         if self.hand_mask_box is not None and not _is_box(self.hand_mask_box):
             raise ValueError(
                 f"policy.hand_mask_box must be (x_lo, y_lo, z_lo, x_hi, y_hi, z_hi), got {self.hand_mask_box}"

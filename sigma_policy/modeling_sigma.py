@@ -45,10 +45,11 @@ from sigma_policy.pointcloud import (
     bounds_mask,
     cube_to_world,
     depth_to_world_points,
-    drop_in_frame_box,
+    drop_points,
+    in_frame_box,
     world_to_cube,
 )
-from sigma_policy.renderer import VirtualViewRenderer
+from sigma_policy.renderer import VIEW_NAMES, VirtualViewRenderer
 from sigma_policy.rotation import bins_to_quat, quat_to_bins, quat_to_matrix
 from sigma_policy.text_encoder import make_text_encoder
 
@@ -80,10 +81,15 @@ class SigmaPrediction:
     cloud_colors: Tensor  # (B, N, 3) its RGB in [0, 1]
 
 
+_TOP = VIEW_NAMES.index("top")
+
+
 @dataclass
 class _Cloud:
     points: Tensor  # (B, N, 3) world metres; NaN where depth was invalid
     colors: Tensor  # (B, N, 3) RGB in [0, 1]
+    # (B, N) the hand's points, kept in the cloud but left out of the top view (hand_mask_views="top"); else None
+    hand: Tensor | None = None
 
 
 class SigmaPolicy(PreTrainedPolicy):
@@ -236,7 +242,7 @@ class SigmaPolicy(PreTrainedPolicy):
             xyz_range=cfg.aug_translation_range,
             yaw_range_deg=cfg.aug_yaw_range_deg,
         )
-        views = self._add_render_noise(self._render(points, cloud.colors, bounds))
+        views = self._add_render_noise(self._render(points, cloud.colors, bounds, cloud.hand))
 
         goal_views = None
         if cfg.use_contrastive:
@@ -250,7 +256,7 @@ class SigmaPolicy(PreTrainedPolicy):
                 xyz_range=cfg.aug_translation_range,
                 yaw_range_deg=cfg.aug_yaw_range_deg,
             )
-            goal_views = self._add_render_noise(self._render(goal_points, goal.colors, bounds))
+            goal_views = self._add_render_noise(self._render(goal_points, goal.colors, bounds, goal.hand))
 
         target_uv = self.renderer.project(world_to_cube(pos[:, None], bounds))[:, 0]  # (B, V, 2)
         target_hm = gaussian_heatmaps(target_uv, cfg.img_size, sigma=cfg.gt_heatmap_sigma)
@@ -318,7 +324,7 @@ class SigmaPolicy(PreTrainedPolicy):
         """Deterministic prediction (no augmentation, no render noise) with everything needed to visualise it."""
         cfg = self.config
         cloud, tasks, bounds = self._inference_scene(batch)
-        views = self._render(cloud.points, cloud.colors, bounds)
+        views = self._render(cloud.points, cloud.colors, bounds, cloud.hand)
         out = self._run_network(views, tasks, batch, bounds)
         trans = out.trans.float()
         point_cube = heatmap_to_cube_point(
@@ -465,13 +471,14 @@ class SigmaPolicy(PreTrainedPolicy):
                 )
             points.append(depth_to_world_points(depth, K, E).flatten(1, 2))
             colors.append(rgb.flatten(2).transpose(1, 2))
-        cloud = torch.cat(points, 1)
+        cloud, hand = torch.cat(points, 1), None
         if self.config.hand_mask_box is not None:  # the hand and the arm above it, from the frame's own state
             state = self._take(batch, OBS_STATE, t, 1).float().to(cloud.device)
-            cloud = drop_in_frame_box(
-                cloud, state[:, :3], quat_to_matrix(state[:, 3:7]), self.config.hand_mask_box
-            )
-        return _Cloud(points=cloud, colors=torch.cat(colors, 1).clamp(0, 1))
+            axes = quat_to_matrix(state[:, 3:7])
+            hand = in_frame_box(cloud, state[:, :3], axes, self.config.hand_mask_box)
+            if self.config.hand_mask_views == "all":
+                cloud, hand = drop_points(cloud, hand), None
+        return _Cloud(points=cloud, colors=torch.cat(colors, 1).clamp(0, 1), hand=hand)
 
     @staticmethod
     def _cloud_box(points: Tensor, bounds: Tensor) -> Tensor:
@@ -484,8 +491,15 @@ class SigmaPolicy(PreTrainedPolicy):
             raise ValueError("place_with_mean_at_eval: a sample has no points inside scene_bounds")
         return torch.cat([lo, hi], -1)
 
-    def _render(self, points: Tensor, colors: Tensor, bounds: Tensor) -> Tensor:
-        """Crop to ``bounds`` ((6,) shared or (B, 6) per sample), map to the cube and render (B, V, 10, H, W)."""
+    def _render(self, points: Tensor, colors: Tensor, bounds: Tensor, hand: Tensor | None = None) -> Tensor:
+        """Crop to ``bounds`` ((6,) shared or (B, 6) per sample), map to the cube and render (B, V, 10, H, W); the
+        top view without the ``hand`` points (B, N) when given."""
+        views = self._render_cloud(points, colors, bounds)
+        if hand is not None:  # the top view shows what the hand is over (hand_mask_views="top")
+            views[:, _TOP] = self._render_cloud(drop_points(points, hand), colors, bounds)[:, _TOP]
+        return views
+
+    def _render_cloud(self, points: Tensor, colors: Tensor, bounds: Tensor) -> Tensor:
         mask = bounds_mask(points, bounds)
         # Keep only in-bounds points (padded to the largest count in the batch): rendering cost scales with N.
         keep = int(mask.sum(1).max())

@@ -25,7 +25,9 @@ __all__ = [
     "depth_to_camera_points",
     "depth_to_world_points",
     "drop_in_frame_box",
+    "drop_points",
     "fuse_cameras",
+    "in_frame_box",
     "world_to_cube",
 ]
 
@@ -77,15 +79,24 @@ def fuse_cameras(points: Tensor, rgb: Tensor) -> tuple[Tensor, Tensor]:
     return points.reshape(B, C * H * W, 3), rgb.permute(0, 1, 3, 4, 2).reshape(B, C * H * W, 3)
 
 
-def drop_in_frame_box(points: Tensor, origin: Tensor, axes: Tensor, box: Sequence[float]) -> Tensor:
-    """Points ``(B, N, 3)`` with those inside ``box`` = ``(x_lo, y_lo, z_lo, x_hi, y_hi, z_hi)`` of a per-sample
-    frame (origin ``(B, 3)``, axes the columns of ``(B, 3, 3)``) set to NaN, which :func:`bounds_mask` rejects."""
+def in_frame_box(points: Tensor, origin: Tensor, axes: Tensor, box: Sequence[float]) -> Tensor:
+    """``(B, N)`` mask of the points ``(B, N, 3)`` inside ``box`` = ``(x_lo, y_lo, z_lo, x_hi, y_hi, z_hi)`` of a
+    per-sample frame (origin ``(B, 3)``, axes the columns of ``(B, 3, 3)``)."""
     if len(box) != 6:
         raise ValueError(f"box must be (x_lo, y_lo, z_lo, x_hi, y_hi, z_hi), got {list(box)}")
     b = torch.as_tensor(box, dtype=points.dtype, device=points.device)
     local = torch.einsum("bnj,bji->bni", points - origin[:, None].to(points), axes.to(points))  # R^T (p - o)
-    inside = ((local >= b[:3]) & (local <= b[3:])).all(-1)
-    return torch.where(inside[..., None], torch.full_like(points, float("nan")), points)
+    return ((local >= b[:3]) & (local <= b[3:])).all(-1)
+
+
+def drop_points(points: Tensor, drop: Tensor) -> Tensor:
+    """Points ``(B, N, 3)`` with those where ``drop (B, N)`` set to NaN, which :func:`bounds_mask` rejects."""
+    return torch.where(drop[..., None], torch.full_like(points, float("nan")), points)
+
+
+def drop_in_frame_box(points: Tensor, origin: Tensor, axes: Tensor, box: Sequence[float]) -> Tensor:
+    """Points ``(B, N, 3)`` with those inside ``box`` of the frame (:func:`in_frame_box`) set to NaN."""
+    return drop_points(points, in_frame_box(points, origin, axes, box))
 
 
 def _bounds_tensor(bounds: Tensor | Sequence[float], like: Tensor) -> Tensor:

@@ -369,8 +369,8 @@ def test_augmented_target_lands_on_the_augmented_cube_inside_forward(tiny_root, 
     render = SigmaPolicy._render
     heatmaps = modeling.gaussian_heatmaps
 
-    def keep_views(self, points, colors, bounds):
-        captured.setdefault("views", render(self, points, colors, bounds))
+    def keep_views(self, points, colors, bounds, hand=None):
+        captured.setdefault("views", render(self, points, colors, bounds, hand))
         return captured["views"]
 
     def keep_uv(uv, *args, **kwargs):
@@ -644,3 +644,24 @@ def test_hand_mask_drops_the_points_at_each_frames_own_grip_site(tiny_root):
     assert torch.isnan(masked.input_cloud(obs)[0]).sum() > torch.isnan(plain.input_cloud(obs)[0]).sum()
     with pytest.raises(ValueError, match="hand_mask_box"):
         SigmaConfig(hand_mask_box=[0.1, 0.1, 0.1, 0.0, 0.2, 0.2])
+
+
+def test_hand_mask_views_top_drops_the_hand_from_the_top_view_only(tiny_root):
+    """``hand_mask_views="top"``: the top view is the one rendered without the hand, the side views the ones
+    rendered with it."""
+    box = [-0.15, -0.15, -0.15, 0.15, 0.15, 0.15]
+    _, plain, pre, _, ds = build(tiny_root)
+    _, every, *_ = build(tiny_root, hand_mask_box=box)
+    _, top, *_ = build(tiny_root, hand_mask_box=box, hand_mask_views="top")
+    batch = pre(training_batch(ds, [0, 1]))
+    bounds = plain._bounds(plain._tasks(batch, 2))
+    rendered = {}
+    for name, policy in (("plain", plain), ("every", every), ("top", top)):
+        cloud = policy._cloud(batch, t=0)
+        rendered[name] = policy._render(cloud.points, cloud.colors, bounds, cloud.hand).clone()
+    assert top._cloud(batch, t=0).hand.any()
+    assert not torch.equal(rendered["every"][:, 0], rendered["plain"][:, 0])
+    torch.testing.assert_close(rendered["top"][:, 0], rendered["every"][:, 0])
+    torch.testing.assert_close(rendered["top"][:, 1:], rendered["plain"][:, 1:])
+    with pytest.raises(ValueError, match="hand_mask_views"):
+        SigmaConfig(hand_mask_views="side")
