@@ -454,7 +454,8 @@ class SigmaPolicy(PreTrainedPolicy):
         return instruction_ids(instructions, device=device) if cfg.mask_same_instruction else None
 
     def _cloud(self, batch: dict[str, Any], t: int) -> _Cloud:
-        """Fused world-frame point cloud of all cameras at frame ``t``, less the hand with ``hand_mask_box``."""
+        """Fused world-frame point cloud of all cameras at frame ``t``; with ``hand_mask_box`` less the hand's points,
+        or (``hand_mask_views="top"``) with them marked for the top view to leave out."""
         scale = 1 / MM_PER_M if self.config.depth_unit == "mm" else 1.0
         points, colors = [], []
         for cam in self.cameras:
