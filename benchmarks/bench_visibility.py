@@ -33,9 +33,8 @@ import torch
 from pipelines.diagnostics import DiagnoseConfig, keyframe_sets
 from pipelines.instruction_swap import swap_scenes
 from sigma_policy.configuration_sigma import PANDA_HAND_BOX
-from sigma_policy.pointcloud import bounds_mask, cube_to_world, drop_in_frame_box, world_to_cube
+from sigma_policy.pointcloud import bounds_mask, cube_to_world, drop_points, hand_points, world_to_cube
 from sigma_policy.renderer import VIEW_NAMES, VirtualViewRenderer
-from sigma_policy.rotation import quat_to_matrix
 
 
 @dataclass
@@ -104,10 +103,11 @@ def main(cfg: VisibilityConfig) -> dict:
                         points, colors, bounds = policy.input_cloud(pre(obs | {"task": [instruction]}))
                     state = item["observation.state"][None].float()
                     for hand in cfg.hand_masks:
-                        kept = points
-                        if hand:
-                            axes = quat_to_matrix(state[:, 3:7])
-                            kept = drop_in_frame_box(points, state[:, :3], axes, PANDA_HAND_BOX)
+                        kept = (
+                            drop_points(points, hand_points(points, state, PANDA_HAND_BOX))
+                            if hand
+                            else points
+                        )
                         for tilt, renderer in renderers.items():
                             world, filled = _rendered(renderer, kept, colors, bounds[0])
                             px = object_pixels(world, filled, objects[name], cfg.margin_m, cfg.floor_clear_m)

@@ -121,7 +121,7 @@ from sigma_data.contract import (  # the data contract: the only sigma_data modu
     rgb_key,
 )
 from sigma_policy.lamb import LambConfig
-from sigma_policy.network import NetworkConfig
+from sigma_policy.network import VIEW_CHANNELS, NetworkConfig
 
 PRESETS: dict[str, dict[str, Any]] = {
     "paper": {
@@ -287,6 +287,10 @@ class SigmaConfig(PreTrainedConfig):
     # from the top view, so the side views still show where the hand is.
     hand_mask_box: list[float] | None = None
     hand_mask_views: str = "all"
+    # An 11th channel in every view (sigma addition): a Gaussian of ``gt_heatmap_sigma`` pixels, peak 1, at the
+    # projection of the frame's grip site (``observation.state``), moved by the same augmentation as the cloud. The
+    # hand's pixel reference when ``hand_mask_box`` takes the hand's points out of the views (docs/method.md §4.3).
+    hand_marker: bool = False
     # Rotation-equivariant yaw scores (sigma_policy/yaw_scan.py): side (pixels) of the top-view crop around the
     # keyframe position that is turned to every yaw bin and scored by one CNN (0 = off); its channels; the training
     # jitter (pixels, uniform per axis) of the crop's centre about the target's projection, standing in for the
@@ -516,4 +520,5 @@ class SigmaConfig(PreTrainedConfig):
         values = {k: getattr(self, k) for k in names if hasattr(self, k) and getattr(self, k) is not None}
         values["proprio_dim"] = 3 + 3 * bool(self.proprio_position) + 6 * bool(self.proprio_orientation)
         values["head_pool_sigma"] = self.gt_heatmap_sigma
+        values["in_channels"] = VIEW_CHANNELS + int(self.hand_marker)
         return NetworkConfig(**values)

@@ -46,7 +46,7 @@ from sigma_policy.pointcloud import (
     cube_to_world,
     depth_to_world_points,
     drop_points,
-    in_frame_box,
+    hand_points,
     world_to_cube,
 )
 from sigma_policy.renderer import VIEW_NAMES, VirtualViewRenderer
@@ -68,7 +68,8 @@ class SigmaPrediction:
     """One inference step, for acting and for visualisation (all tensors on the policy device)."""
 
     action: Tensor  # (B, 9) world-frame next-keyframe action
-    views: Tensor  # (B, V, 10, H, W) rendered virtual views (channels: xyz, rgb, depth, view id, row, col)
+    # (B, V, 10, H, W) rendered virtual views (channels: xyz, rgb, depth, view id, row, col; + the hand marker)
+    views: Tensor
     heatmaps: Tensor  # (B, V, H, W) per-view translation probabilities (each view sums to 1)
     point_cube: Tensor  # (B, 3) predicted translation in cube coordinates
     point_world: Tensor  # (B, 3) predicted translation in world metres
@@ -243,12 +244,13 @@ class SigmaPolicy(PreTrainedPolicy):
             yaw_range_deg=cfg.aug_yaw_range_deg,
         )
         views = self._add_render_noise(self._render(points, cloud.colors, bounds, cloud.hand))
+        views = self._mark_hand(views, self._site(batch, 0, transforms), bounds)
 
         goal_views = None
         if cfg.use_contrastive:
             goal = self._cloud(batch, t=1)
             state = self._take(batch, OBS_STATE, t=1, item_ndim=1).float()
-            goal_points, *_ = se3_augment(
+            goal_points, goal_site, *_ = se3_augment(
                 goal.points,
                 state[:, :3],
                 state[:, 3:7],
@@ -257,6 +259,7 @@ class SigmaPolicy(PreTrainedPolicy):
                 yaw_range_deg=cfg.aug_yaw_range_deg,
             )
             goal_views = self._add_render_noise(self._render(goal_points, goal.colors, bounds, goal.hand))
+            goal_views = self._mark_hand(goal_views, goal_site, bounds)
 
         target_uv = self.renderer.project(world_to_cube(pos[:, None], bounds))[:, 0]  # (B, V, 2)
         target_hm = gaussian_heatmaps(target_uv, cfg.img_size, sigma=cfg.gt_heatmap_sigma)
@@ -325,6 +328,7 @@ class SigmaPolicy(PreTrainedPolicy):
         cfg = self.config
         cloud, tasks, bounds = self._inference_scene(batch)
         views = self._render(cloud.points, cloud.colors, bounds, cloud.hand)
+        views = self._mark_hand(views, self._site(batch, 0), bounds)
         out = self._run_network(views, tasks, batch, bounds)
         trans = out.trans.float()
         point_cube = heatmap_to_cube_point(
@@ -475,8 +479,7 @@ class SigmaPolicy(PreTrainedPolicy):
         cloud, hand = torch.cat(points, 1), None
         if self.config.hand_mask_box is not None:  # the hand and the arm above it, from the frame's own state
             state = self._take(batch, OBS_STATE, t, 1).float().to(cloud.device)
-            axes = quat_to_matrix(state[:, 3:7])
-            hand = in_frame_box(cloud, state[:, :3], axes, self.config.hand_mask_box)
+            hand = hand_points(cloud, state, self.config.hand_mask_box)
             if self.config.hand_mask_views == "all":
                 cloud, hand = drop_points(cloud, hand), None
         return _Cloud(points=cloud, colors=torch.cat(colors, 1).clamp(0, 1), hand=hand)
@@ -513,6 +516,26 @@ class SigmaPolicy(PreTrainedPolicy):
         with torch.no_grad():
             return self.renderer(cube, colors, mask)
 
+    def _site(self, batch: dict[str, Any], t: int, transforms: Tensor | None = None) -> Tensor:
+        """(B, 3) the grip site's world position at frame ``t`` (``observation.state[:3]``), moved by the
+        augmentation ``transforms`` (B, 4, 4) when given."""
+        pos = self._take(batch, OBS_STATE, t, 1).float()[:, :3].to(self._device)
+        if transforms is None:
+            return pos
+        transforms = transforms.to(pos)
+        return torch.einsum("bij,bj->bi", transforms[:, :3, :3], pos) + transforms[:, :3, 3]
+
+    def _mark_hand(self, views: Tensor, site: Tensor, bounds: Tensor) -> Tensor:
+        """With ``hand_marker``: ``views`` (B, V, C, H, W) and an 11th channel, a Gaussian of peak 1 at the projection
+        of the grip site ``site`` (B, 3, world metres) in the cube of ``bounds``; else ``views`` unchanged."""
+        if not self.config.hand_marker:
+            return views
+        uv = self.renderer.project(world_to_cube(site[:, None], bounds))[:, 0]  # (B, V, 2)
+        marker = gaussian_heatmaps(
+            uv, self.config.img_size, sigma=self.config.gt_heatmap_sigma, normalise=False
+        )
+        return torch.cat([views, marker[:, :, None].to(views.dtype)], dim=2)
+
     def _add_render_noise(self, views: Tensor) -> Tensor:
         """Uniform noise U(-s, s), s = image_noise · U(0, 1) per batch, on channels 0-6, then clamp to [-1, 1]."""
         if self.config.image_noise <= 0:
@@ -546,10 +569,7 @@ class SigmaPolicy(PreTrainedPolicy):
         parts = [state[:, 7:10]]
         rotation = transforms[:, :3, :3].to(state) if transforms is not None else None
         if self.config.proprio_position:
-            pos = state[:, :3]
-            if rotation is not None:
-                pos = torch.einsum("bij,bj->bi", rotation, pos) + transforms[:, :3, 3].to(pos)
-            parts.append(world_to_cube(pos, bounds))
+            parts.append(world_to_cube(self._site(batch, 0, transforms).to(state), bounds))
         if self.config.proprio_orientation:
             R = quat_to_matrix(state[:, 3:7])
             if rotation is not None:

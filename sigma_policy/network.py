@@ -45,13 +45,15 @@ from sigma_policy.layers import LRELU_SLOPE, ConvBlock, DenseBlock
 from sigma_policy.views import project_points, tilt_slope
 from sigma_policy.yaw_scan import YawScanner
 
+VIEW_CHANNELS = 10  # a rendered view: xyz, rgb, depth, view id, row, col (sigma_policy/renderer.py)
+
 
 @dataclass(frozen=True)
 class NetworkConfig:
     """Architecture numbers; the defaults are the paper / released-code configuration (docs/method.md §5, §12)."""
 
     num_views: int = 5
-    in_channels: int = 10
+    in_channels: int = VIEW_CHANNELS  # + 1 with the hand marker (SigmaConfig.hand_marker)
     img_size: int = 220
     patch_size: int = 11
     im_channels: int = 64

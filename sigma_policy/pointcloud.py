@@ -19,14 +19,17 @@ from collections.abc import Sequence
 import torch
 from torch import Tensor
 
+from sigma_data.contract import STATE_QUAT
+from sigma_policy.rotation import quat_to_matrix
+
 __all__ = [
     "bounds_mask",
     "cube_to_world",
     "depth_to_camera_points",
     "depth_to_world_points",
-    "drop_in_frame_box",
     "drop_points",
     "fuse_cameras",
+    "hand_points",
     "in_frame_box",
     "world_to_cube",
 ]
@@ -94,9 +97,11 @@ def drop_points(points: Tensor, drop: Tensor) -> Tensor:
     return torch.where(drop[..., None], torch.full_like(points, float("nan")), points)
 
 
-def drop_in_frame_box(points: Tensor, origin: Tensor, axes: Tensor, box: Sequence[float]) -> Tensor:
-    """Points ``(B, N, 3)`` with those inside ``box`` of the frame (:func:`in_frame_box`) set to NaN."""
-    return drop_points(points, in_frame_box(points, origin, axes, box))
+def hand_points(points: Tensor, state: Tensor, box: Sequence[float]) -> Tensor:
+    """``(B, N)`` mask of the points ``(B, N, 3)`` inside ``box`` of the grip site's frame, read from
+    ``observation.state`` rows ``(B, D)``: the site's position ``[:3]`` and its xyzw quaternion (``STATE_QUAT``,
+    sigma_data/contract.py)."""
+    return in_frame_box(points, state[:, :3], quat_to_matrix(state[:, STATE_QUAT]), box)
 
 
 def _bounds_tensor(bounds: Tensor | Sequence[float], like: Tensor) -> Tensor:

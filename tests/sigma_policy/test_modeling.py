@@ -665,3 +665,58 @@ def test_hand_mask_views_top_drops_the_hand_from_the_top_view_only(tiny_root):
     torch.testing.assert_close(rendered["top"][:, 1:], rendered["plain"][:, 1:])
     with pytest.raises(ValueError, match="hand_mask_views"):
         SigmaConfig(hand_mask_views="side")
+
+
+def test_hand_marker_peaks_at_each_frames_augmented_grip_site(tiny_root, monkeypatch):
+    """``hand_marker``: every view gets an 11th channel whose peak (1 at the centre) is the pixel of the frame's
+    own grip site, moved by that frame's augmentation (current and goal views), and at inference by none; the
+    network's first layer takes 11 channels."""
+    import sigma_policy.modeling_sigma as modeling
+
+    captured = {}
+    augment = modeling.se3_augment
+
+    def keep_augmented(points, pos, *args, **kwargs):
+        out = augment(points, pos, *args, **kwargs)
+        captured.setdefault("augmented", []).append(out)
+        return out
+
+    monkeypatch.setattr(modeling, "se3_augment", keep_augmented)
+    _, policy, pre, _, ds = build(
+        tiny_root, hand_marker=True, aug_translation_range=0.1, aug_yaw_range_deg=45.0
+    )
+    assert policy.network.cfg.in_channels == 11
+    seen = {}
+    hook = policy.network.register_forward_hook(
+        lambda _m, args, kwargs, _out: seen.update(views=args[0], goal=kwargs["goal_images"]),
+        with_kwargs=True,
+    )
+    batch = pre(training_batch(ds, [0, 1, 2]))
+    torch.manual_seed(5)
+    policy.forward(batch)
+    state = batch["observation.state"].float()
+    bounds = policy._bounds(policy._tasks(batch, 3))
+    (_, _, _, transforms), (_, goal_site, _, _) = captured["augmented"]
+    site = torch.einsum("bij,bj->bi", transforms[:, :3, :3], state[:, 0, :3]) + transforms[:, :3, 3]
+    assert not torch.allclose(site, state[:, 0, :3])  # the augmentation moved it
+    for views, where in ((seen["views"], site), (seen["goal"], goal_site)):
+        assert views.shape[2] == 11
+        uv = policy.renderer.project(world_to_cube(where[:, None], bounds))[:, 0]  # (B, V, 2)
+        marker = views[:, :, 10]
+        size = marker.shape[-1]
+        inside = ((uv >= 0) & (uv < size)).all(-1)
+        assert inside.any()
+        peak = marker.flatten(2).argmax(-1)
+        expected = uv[..., 1].floor().long() * size + uv[..., 0].floor().long()
+        assert torch.equal(peak[inside], expected[inside])
+        assert (marker.amax((-2, -1))[inside] > 0.75).all() and marker.max() <= 1.0
+    policy.eval()
+    obs = pre(single_observation(tiny_root, 1))
+    prediction = policy.predict(obs)
+    uv = policy.renderer.project(
+        world_to_cube(obs["observation.state"][:, None, :3].float(), prediction.bounds)
+    )
+    marker = prediction.views[0, :, 10]
+    col, row = uv[0, 0, :, 0].floor().long(), uv[0, 0, :, 1].floor().long()
+    assert torch.equal(marker.flatten(1).argmax(-1), row * marker.shape[-1] + col)
+    hook.remove()

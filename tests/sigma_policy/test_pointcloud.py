@@ -13,12 +13,13 @@ from sigma_policy.pointcloud import (
     cube_to_world,
     depth_to_camera_points,
     depth_to_world_points,
-    drop_in_frame_box,
+    drop_points,
     fuse_cameras,
+    hand_points,
+    in_frame_box,
     world_to_cube,
 )
 from sigma_policy.renderer import VIEW_NAMES, VirtualViewRenderer
-from sigma_policy.rotation import quat_to_matrix
 
 BOUNDS = torch.tensor([-0.4, -0.5, 0.75, 0.4, 0.5, 1.35])
 
@@ -153,26 +154,28 @@ def test_real_lift_cloud_renders_cube_where_it_is(lift_frame: dict) -> None:
         assert surface_dist.abs().max() < 0.003, (name, float(surface_dist.abs().max()))
 
 
-def test_drop_in_frame_box_uses_the_frame_axes() -> None:
+def test_in_frame_box_uses_the_frame_axes() -> None:
     """A box in a frame turned 90° about z and moved: points inside it (in that frame) become NaN, others stay."""
     axes = torch.tensor([[0.0, -1.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, 1.0]])  # frame x = world y
     origin = torch.tensor([1.0, 2.0, 3.0])
     pts = origin + torch.tensor(
         [[0.0, 0.5, 0.0], [0.5, 0.0, 0.0], [0.0, 0.0, 0.0]]
     )  # frame x +0.5, frame y -0.5
-    out = drop_in_frame_box(pts[None], origin[None], axes[None], [0.4, -0.1, -0.1, 0.6, 0.1, 0.1])[0]
+    inside = in_frame_box(pts[None], origin[None], axes[None], [0.4, -0.1, -0.1, 0.6, 0.1, 0.1])
+    out = drop_points(pts[None], inside)[0]
     assert torch.isnan(out[0]).all() and torch.equal(out[1:], pts[1:])
     with pytest.raises(ValueError, match="x_lo"):
-        drop_in_frame_box(pts[None], origin[None], axes[None], [0.0, 1.0])
+        in_frame_box(pts[None], origin[None], axes[None], [0.0, 1.0])
 
 
 def test_panda_hand_box_drops_the_real_hand_and_nothing_else(lift_frame: dict) -> None:
     """On a real robosuite Lift frame, ``PANDA_HAND_BOX`` in the grip site's frame holds the Panda hand and link
     7 (by MuJoCo's segmentation of the four cameras) and none of the cube's or the table's points."""
     world = depth_to_world_points(lift_frame["depth"], lift_frame["K"], lift_frame["E"]).reshape(1, -1, 3)
-    axes = quat_to_matrix(lift_frame["site_quat"])[None]
-    kept = drop_in_frame_box(world, lift_frame["site_pos"][None], axes, PANDA_HAND_BOX)[0]
-    dropped = torch.isnan(kept).all(-1) & torch.isfinite(world[0]).all(-1)
+    state = torch.cat([lift_frame["site_pos"], lift_frame["site_quat"], torch.tensor([1.0, 0.04, -0.04])])[
+        None
+    ]
+    dropped = hand_points(world, state, PANDA_HAND_BOX)[0] & torch.isfinite(world[0]).all(-1)
     names = lift_frame["body_names"]
     body = lift_frame["body"].reshape(-1)
 
