@@ -291,6 +291,11 @@ class SigmaConfig(PreTrainedConfig):
     # projection of the frame's grip site (``observation.state``), moved by the same augmentation as the cloud. The
     # hand's pixel reference when ``hand_mask_box`` takes the hand's points out of the views (docs/method.md §4.3).
     hand_marker: bool = False
+    # Training only: the current frame's grip site that the hand marker and the proprio token get is moved by a
+    # uniform offset of up to this many metres in x and in y (per sample), the target not. In the demonstrations the
+    # hand is always right above what it grasps next, so without it the policy learns to copy the hand's position
+    # down and never corrects a pre-grasp that is off (docs/learning.md, "The hand marker"). 0 = off.
+    hand_site_noise_m: float = 0.0
     # Rotation-equivariant yaw scores (sigma_policy/yaw_scan.py): side (pixels) of the top-view crop around the
     # keyframe position that is turned to every yaw bin and scored by one CNN (0 = off); its channels; the training
     # jitter (pixels, uniform per axis) of the crop's centre about the target's projection, standing in for the
@@ -394,6 +399,8 @@ class SigmaConfig(PreTrainedConfig):
             raise ValueError(
                 f"policy.hand_mask_box must be (x_lo, y_lo, z_lo, x_hi, y_hi, z_hi), got {self.hand_mask_box}"
             )
+        if not self.hand_site_noise_m >= 0.0:
+            raise ValueError(f"policy.hand_site_noise_m must be >= 0, got {self.hand_site_noise_m}")
         self.network_config()  # validates the architecture numbers early
 
     # ------------------------------------------------------------------ LeRobot hooks

@@ -244,7 +244,13 @@ class SigmaPolicy(PreTrainedPolicy):
             yaw_range_deg=cfg.aug_yaw_range_deg,
         )
         views = self._add_render_noise(self._render(points, cloud.colors, bounds, cloud.hand))
-        views = self._mark_hand(views, self._site(batch, 0, transforms), bounds)
+        site = self._site(batch, 0, transforms)
+        if (
+            cfg.hand_site_noise_m > 0
+        ):  # the hand's inputs off by a few cm, the target not: read the target's pixels
+            shift = (torch.rand_like(site) * 2 - 1) * cfg.hand_site_noise_m
+            site = site + shift * torch.tensor([1.0, 1.0, 0.0], device=site.device)
+        views = self._mark_hand(views, site, bounds)
 
         goal_views = None
         if cfg.use_contrastive:
@@ -276,6 +282,7 @@ class SigmaPolicy(PreTrainedPolicy):
             transforms=transforms,
             head_heatmap=target_hm,
             head_uv=scan_uv,
+            site=site,
         )
 
         # ---- behaviour cloning (per sample)
@@ -559,17 +566,21 @@ class SigmaPolicy(PreTrainedPolicy):
         sentence = torch.stack([self._lang_cache[s][1] for s in tasks])
         return tokens, sentence
 
-    def _proprio(self, batch: dict[str, Any], bounds: Tensor, transforms: Tensor | None) -> Tensor | None:
+    def _proprio(
+        self, batch: dict[str, Any], bounds: Tensor, transforms: Tensor | None, site: Tensor | None = None
+    ) -> Tensor | None:
         """The proprio token's input: [gripper_open, finger_q1, finger_q2] (+ the grip site's position in the
         scene box with ``proprio_position``, + its orientation as the first two columns of its rotation matrix with
-        ``proprio_orientation``; both moved by the same augmentation as the cloud)."""
+        ``proprio_orientation``; both moved by the same augmentation as the cloud). ``site`` (B, 3, world metres)
+        replaces the position read from ``batch`` (training with ``hand_site_noise_m``)."""
         if not self.config.use_proprio:
             return None
         state = self._take(batch, OBS_STATE, 0, 1).float()
         parts = [state[:, 7:10]]
         rotation = transforms[:, :3, :3].to(state) if transforms is not None else None
         if self.config.proprio_position:
-            parts.append(world_to_cube(self._site(batch, 0, transforms).to(state), bounds))
+            site = self._site(batch, 0, transforms) if site is None else site
+            parts.append(world_to_cube(site.to(state), bounds))
         if self.config.proprio_orientation:
             R = quat_to_matrix(state[:, 3:7])
             if rotation is not None:
@@ -587,9 +598,11 @@ class SigmaPolicy(PreTrainedPolicy):
         transforms: Tensor | None = None,
         head_heatmap: Tensor | None = None,
         head_uv: Tensor | None = None,
+        site: Tensor | None = None,
     ) -> NetworkOutput:
+        """``site``: the grip site (B, 3, world) the proprio token gets, when not read from ``batch``."""
         tokens, sentence = self._language(tasks)
-        proprio = self._proprio(batch, bounds, transforms)
+        proprio = self._proprio(batch, bounds, transforms, site)
         device = views.device
         autocast = nullcontext()
         if self.config.use_bf16_autocast and device.type == "cuda" and torch.cuda.is_bf16_supported():

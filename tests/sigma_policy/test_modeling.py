@@ -720,3 +720,33 @@ def test_hand_marker_peaks_at_each_frames_augmented_grip_site(tiny_root, monkeyp
     col, row = uv[0, 0, :, 0].floor().long(), uv[0, 0, :, 1].floor().long()
     assert torch.equal(marker.flatten(1).argmax(-1), row * marker.shape[-1] + col)
     hook.remove()
+
+
+def test_hand_site_noise_moves_the_marker_and_the_proprio_position_together_and_not_the_target(
+    tiny_root, monkeypatch
+):
+    """``hand_site_noise_m``: in training the hand marker and the proprio token get the same grip site, off the
+    real one by at most the noise in x and y and not at all in z."""
+    captured = {}
+    mark, proprio = SigmaPolicy._mark_hand, SigmaPolicy._proprio
+
+    def keep_marked(self, views, site, bounds):
+        captured.setdefault("marked", site)
+        return mark(self, views, site, bounds)
+
+    def keep_proprio(self, batch, bounds, transforms, site=None):
+        captured["proprio"], captured["transforms"] = site, transforms
+        return proprio(self, batch, bounds, transforms, site)
+
+    monkeypatch.setattr(SigmaPolicy, "_mark_hand", keep_marked)
+    monkeypatch.setattr(SigmaPolicy, "_proprio", keep_proprio)
+    _, policy, pre, _, ds = build(tiny_root, hand_marker=True, hand_site_noise_m=0.05, use_contrastive=False)
+    batch = pre(training_batch(ds, [0, 1, 2, 3]))
+    policy.forward(batch)
+    site = policy._site(batch, 0, captured["transforms"])
+    offset = captured["marked"] - site
+    assert captured["proprio"] is captured["marked"]
+    assert (offset[:, :2].abs() <= 0.05 + 1e-6).all() and offset[:, :2].abs().max() > 0.005
+    torch.testing.assert_close(offset[:, 2], torch.zeros(4))
+    with pytest.raises(ValueError, match="hand_site_noise_m"):
+        SigmaConfig(hand_site_noise_m=-0.01)
