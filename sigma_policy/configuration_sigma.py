@@ -290,6 +290,8 @@ class SigmaConfig(PreTrainedConfig):
     # An 11th channel in every view (sigma addition): a Gaussian of ``gt_heatmap_sigma`` pixels, peak 1, at the
     # projection of the frame's grip site (``observation.state``), moved by the same augmentation as the cloud. The
     # hand's pixel reference when ``hand_mask_box`` takes the hand's points out of the views (docs/method.md §4.3).
+    # Off in every preset: on the CPU suite the grasp then copied the hand's position down (docs/learning.md, "The
+    # hand marker").
     hand_marker: bool = False
     # Training only: the current frame's grip site that the hand marker and the proprio token get is moved by a
     # uniform offset of up to this many metres in x and in y (per sample), the target not. In the demonstrations the
