@@ -295,8 +295,9 @@ class SigmaConfig(PreTrainedConfig):
     hand_marker: bool = False
     # Training only: the current frame's grip site that the hand marker and the proprio token get is moved by a
     # uniform offset of up to this many metres in x and in y (per sample), the target not. In the demonstrations the
-    # hand is always right above what it grasps next, so without it the policy learns to copy the hand's position
-    # down and never corrects a pre-grasp that is off (docs/learning.md, "The hand marker"). 0 = off.
+    # hand is always right above what it grasps next, and with the marker the policy learns to copy the hand's
+    # position down instead of correcting a pre-grasp that is off. 0 = off; 0.02 copied less but scored no better
+    # on the CPU suite (docs/learning.md, "The hand marker").
     hand_site_noise_m: float = 0.0
     # Rotation-equivariant yaw scores (sigma_policy/yaw_scan.py): side (pixels) of the top-view crop around the
     # keyframe position that is turned to every yaw bin and scored by one CNN (0 = off); its channels; the training

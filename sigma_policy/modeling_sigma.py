@@ -245,9 +245,8 @@ class SigmaPolicy(PreTrainedPolicy):
         )
         views = self._add_render_noise(self._render(points, cloud.colors, bounds, cloud.hand))
         site = self._site(batch, 0, transforms)
-        if (
-            cfg.hand_site_noise_m > 0
-        ):  # the hand's inputs off by a few cm, the target not: read the target's pixels
+        # With hand_site_noise_m the hand's inputs are off by a few cm and the target is not: read the target's pixels.
+        if cfg.hand_site_noise_m > 0:
             shift = (torch.rand_like(site) * 2 - 1) * cfg.hand_site_noise_m
             site = site + shift * torch.tensor([1.0, 1.0, 0.0], device=site.device)
         views = self._mark_hand(views, site, bounds)
