@@ -244,12 +244,15 @@ class SigmaPolicy(PreTrainedPolicy):
             yaw_range_deg=cfg.aug_yaw_range_deg,
         )
         views = self._add_render_noise(self._render(points, cloud.colors, bounds, cloud.hand))
-        site = self._site(batch, 0, transforms)
-        # With hand_site_noise_m the hand's inputs are off by a few cm and the target is not: read the target's pixels.
-        if cfg.hand_site_noise_m > 0:
-            shift = (torch.rand_like(site) * 2 - 1) * cfg.hand_site_noise_m
-            site = site + shift * torch.tensor([1.0, 1.0, 0.0], device=site.device)
-        views = self._mark_hand(views, site, bounds)
+        site = None  # the grip site the marker and the proprio token get (read only where one of them is on)
+        if cfg.hand_marker or (cfg.use_proprio and cfg.proprio_position):
+            site = self._site(batch, 0, transforms)
+            # With hand_site_noise_m the hand's inputs are off by a few cm and the target is not: read its pixels.
+            if cfg.hand_site_noise_m > 0:
+                shift = (torch.rand_like(site) * 2 - 1) * cfg.hand_site_noise_m
+                site = site + shift * torch.tensor([1.0, 1.0, 0.0], device=site.device)
+        if cfg.hand_marker:
+            views = self._mark_hand(views, site, bounds)
 
         goal_views = None
         if cfg.use_contrastive:
@@ -264,7 +267,8 @@ class SigmaPolicy(PreTrainedPolicy):
                 yaw_range_deg=cfg.aug_yaw_range_deg,
             )
             goal_views = self._add_render_noise(self._render(goal_points, goal.colors, bounds, goal.hand))
-            goal_views = self._mark_hand(goal_views, goal_site, bounds)
+            if cfg.hand_marker:
+                goal_views = self._mark_hand(goal_views, goal_site, bounds)
 
         target_uv = self.renderer.project(world_to_cube(pos[:, None], bounds))[:, 0]  # (B, V, 2)
         target_hm = gaussian_heatmaps(target_uv, cfg.img_size, sigma=cfg.gt_heatmap_sigma)
@@ -334,7 +338,8 @@ class SigmaPolicy(PreTrainedPolicy):
         cfg = self.config
         cloud, tasks, bounds = self._inference_scene(batch)
         views = self._render(cloud.points, cloud.colors, bounds, cloud.hand)
-        views = self._mark_hand(views, self._site(batch, 0), bounds)
+        if cfg.hand_marker:
+            views = self._mark_hand(views, self._site(batch, 0), bounds)
         out = self._run_network(views, tasks, batch, bounds)
         trans = out.trans.float()
         point_cube = heatmap_to_cube_point(
@@ -532,10 +537,8 @@ class SigmaPolicy(PreTrainedPolicy):
         return torch.einsum("bij,bj->bi", transforms[:, :3, :3], pos) + transforms[:, :3, 3]
 
     def _mark_hand(self, views: Tensor, site: Tensor, bounds: Tensor) -> Tensor:
-        """With ``hand_marker``: ``views`` (B, V, C, H, W) and an 11th channel, a Gaussian of peak 1 at the projection
-        of the grip site ``site`` (B, 3, world metres) in the cube of ``bounds``; else ``views`` unchanged."""
-        if not self.config.hand_marker:
-            return views
+        """``views`` (B, V, C, H, W) and the hand marker (``hand_marker``) as channel C: a Gaussian of peak 1 at the
+        projection of the grip site ``site`` (B, 3, world metres) in the cube of ``bounds``."""
         uv = self.renderer.project(world_to_cube(site[:, None], bounds))[:, 0]  # (B, V, 2)
         marker = gaussian_heatmaps(
             uv, self.config.img_size, sigma=self.config.gt_heatmap_sigma, normalise=False

@@ -750,3 +750,17 @@ def test_hand_site_noise_moves_the_marker_and_the_proprio_position_together_and_
     torch.testing.assert_close(offset[:, 2], torch.zeros(4))
     with pytest.raises(ValueError, match="hand_site_noise_m"):
         SigmaConfig(hand_site_noise_m=-0.01)
+
+
+def test_inference_reads_no_state_when_nothing_uses_it(tiny_root):
+    """Without the proprio token, the hand mask and the hand marker, ``observation.state`` is not read at inference
+    (RVT's inputs: the cameras and the instruction); with the marker it is, and its absence is named."""
+    obs = single_observation(tiny_root, 1)
+    del obs["observation.state"]
+    _, plain, pre, _, _ = build(tiny_root, use_proprio=False)
+    plain.eval()
+    assert torch.isfinite(plain.select_action(pre(dict(obs)))).all()
+    _, marked, *_ = build(tiny_root, use_proprio=False, hand_marker=True)
+    marked.eval()
+    with pytest.raises(KeyError, match="observation.state"):
+        marked.select_action(pre(dict(obs)))
