@@ -762,5 +762,5 @@ def test_inference_reads_no_state_when_nothing_uses_it(tiny_root):
     assert torch.isfinite(plain.select_action(pre(dict(obs)))).all()
     _, marked, *_ = build(tiny_root, use_proprio=False, hand_marker=True)
     marked.eval()
-    with pytest.raises(KeyError, match="observation.state"):
+    with pytest.raises(KeyError, match=r"observation\.state"):
         marked.select_action(pre(dict(obs)))
