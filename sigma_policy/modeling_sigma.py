@@ -34,7 +34,7 @@ from lerobot.policies.pretrained import PreTrainedPolicy
 from lerobot.utils.constants import ACTION, OBS_STATE
 from torch import Tensor
 
-from sigma_data.contract import TIMESTAMP
+from sigma_data.contract import STATE_QUAT, TIMESTAMP
 from sigma_policy import lerobot_patches
 from sigma_policy.augmentation import se3_augment
 from sigma_policy.configuration_sigma import SigmaConfig
@@ -261,7 +261,7 @@ class SigmaPolicy(PreTrainedPolicy):
             goal_points, goal_site, *_ = se3_augment(
                 goal.points,
                 state[:, :3],
-                state[:, 3:7],
+                state[:, STATE_QUAT],
                 bounds,
                 xyz_range=cfg.aug_translation_range,
                 yaw_range_deg=cfg.aug_yaw_range_deg,
@@ -584,7 +584,7 @@ class SigmaPolicy(PreTrainedPolicy):
             site = self._site(batch, 0, transforms) if site is None else site
             parts.append(world_to_cube(site.to(state), bounds))
         if self.config.proprio_orientation:
-            R = quat_to_matrix(state[:, 3:7])
+            R = quat_to_matrix(state[:, STATE_QUAT])
             if rotation is not None:
                 R = rotation @ R
             parts.append(R[:, :, :2].transpose(1, 2).flatten(1))  # columns x, y: continuous, sign-free
