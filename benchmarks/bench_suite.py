@@ -72,6 +72,9 @@ class SuiteBenchConfig:
     # Training demonstrations per variation (seeds from 0) and held-out ones (seeds from 50000).
     episodes: int = 30
     heldout_episodes: int = 5
+    # Radius (m) of the random horizontal offset of the experts' approach waypoints in the training demonstrations
+    # (`sigma-data collect --pregrasp_jitter_m`, DART-style data; docs/learning.md); 0: the experts' own.
+    pregrasp_jitter_m: float = 0.0
     cameras: list[str] = field(default_factory=lambda: list(DEFAULT_CAMERAS))
     image_size: int = 64
     # Training budget; None: the preset's (PRESET_BUDGETS: 6000 × batch 8, `gpu` 3000 × 64). Checkpoints saved (and
@@ -175,6 +178,7 @@ def collect_data(cfg: SuiteBenchConfig) -> tuple[Path, Path]:
         cfg.image_size,
         cfg.workers,
         "suite",
+        pregrasp_jitter_m=cfg.pregrasp_jitter_m,
     )
 
 
@@ -204,7 +208,13 @@ def markdown(cfg: SuiteBenchConfig, results: list[dict]) -> str:
     rows = [numbers(r) for r in results]
     names = list(rows[0]["variations"]) if rows else []
     head = (
-        f"Tasks {', '.join(cfg.tasks)}: {cfg.episodes} demonstrations per variation (seeds from 0), held-out "
+        f"Tasks {', '.join(cfg.tasks)}: {cfg.episodes} demonstrations per variation (seeds from 0"
+        + (
+            f", approach waypoints moved up to {100 * cfg.pregrasp_jitter_m:g} cm"
+            if cfg.pregrasp_jitter_m
+            else ""
+        )
+        + "), held-out "
         f"keyframes from {cfg.heldout_episodes} more per variation (seeds from 50000); 4 cameras at "
         f"{cfg.image_size}²; one multi-task policy, {' '.join(f'`{a}`' for a in cfg.preset_args)}, "
         f"{cfg.steps} `lerobot-train` steps × batch {cfg.batch_size}, peak learning rate {cfg.peak_lr:g} and its "

@@ -59,16 +59,26 @@ def collect_train_and_heldout(
     image_size: int,
     workers: int,
     name: str,
+    pregrasp_jitter_m: float = 0.0,
 ) -> tuple[Path, Path]:
     """Keyframe datasets of training seeds (from 0) and held-out seeds (from 50000) under ``output_dir``/train and
-    /heldout; a finished one is reused. Returns the two dataset roots."""
+    /heldout; a finished one is reused. ``pregrasp_jitter_m`` moves the experts' approach waypoints of the training
+    seeds only: the held-out keyframes stay the experts' own. Returns the two dataset roots."""
     from pipelines.collecting import collect_demonstrations
 
     roots = []
     for where, episodes, start in (("train", train_episodes, 0), ("heldout", heldout_episodes, 50_000)):
         out = output_dir / where
         done = out / "data" / "keyframe"
-        if not (done / "meta" / "info.json").exists():
+        jitter = pregrasp_jitter_m if where == "train" else 0.0
+        if (done / "meta" / "info.json").exists():
+            recorded = json.loads((out / "data" / "collect.json").read_text())["config"]
+            if float(recorded.get("pregrasp_jitter_m", 0.0)) != jitter:
+                raise FileExistsError(
+                    f"{out / 'data'} was collected with pregrasp_jitter_m "
+                    f"{recorded.get('pregrasp_jitter_m', 0.0)}, not {jitter}: choose another --output_dir"
+                )
+        else:
             collect_demonstrations(
                 out,
                 tasks,
@@ -79,6 +89,7 @@ def collect_train_and_heldout(
                 f"local/{name}_{where}",
                 dense=False,
                 start_seed=start,
+                pregrasp_jitter_m=jitter,
             )
         roots.append(done)
     return roots[0], roots[1]

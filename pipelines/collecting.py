@@ -17,9 +17,11 @@ def collect_demonstrations(
     workers: int,
     repo_id: str,
     start_seed: int = 0,
+    pregrasp_jitter_m: float = 0.0,
     **output: Any,
 ) -> dict[str, Path]:
-    """Collect ``episodes`` seeds per variation of ``tasks`` (from ``start_seed``); ``output`` are further
+    """Collect ``episodes`` seeds per variation of ``tasks`` (from ``start_seed``; the experts' approach waypoints
+    moved by up to ``pregrasp_jitter_m``, ``sigma-data collect --pregrasp_jitter_m``); ``output`` are further
     ``--output.*`` fields (``dense=False``, ``dense_depth=False``...). Returns the written datasets by kind."""
     from sigma_data.cameras import RenderOptions
     from sigma_data.collect import CollectConfig, CollectOutputConfig, collect
@@ -34,6 +36,7 @@ def collect_demonstrations(
             output=CollectOutputConfig(dir=Path(output_dir) / "data", repo_id=repo_id, **output),
             render=RenderOptions(cameras=",".join(cameras), height=image_size, width=image_size),
             workers=workers,
+            pregrasp_jitter_m=pregrasp_jitter_m,
             progress=False,
         )
     )

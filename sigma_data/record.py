@@ -60,10 +60,15 @@ class EpisodeRecorder:
 
     Create it right after ``reset_env`` (frame 0 is the state at construction, gripper assumed open as
     ``reset_env`` leaves it). The env should have ``use_camera_obs=False`` so that stepping never renders.
+    ``pregrasp_jitter_m`` is read by the experts' :class:`~sigma_data.experts.base.WaypointArm`: the radius of the
+    random x-y offset it gives each approach waypoint (0: the expert's own waypoints).
     """
 
-    def __init__(self, env: Any, initial_gripper_open: bool = True):
+    def __init__(self, env: Any, initial_gripper_open: bool = True, pregrasp_jitter_m: float = 0.0):
+        if not (np.isfinite(pregrasp_jitter_m) and pregrasp_jitter_m >= 0):
+            raise ValueError(f"pregrasp_jitter_m must be a finite distance >= 0 m, got {pregrasp_jitter_m}")
         self.env = env
+        self.pregrasp_jitter_m = float(pregrasp_jitter_m)
         self._gripper_open = bool(initial_gripper_open)
         self._sim_states: list[np.ndarray] = []
         self._states: list[np.ndarray] = []

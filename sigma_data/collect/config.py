@@ -87,6 +87,11 @@ class CollectConfig:
     shard_size: int = 10
     # Seed of the random model parameters drawn when an env is built (e.g. Lift's cube size).
     model_seed: int = 0
+    # Radius (m) of a random horizontal offset given to each expert's approach waypoint (the pose above the object
+    # before a grasp), uniform over the disc; the grasp that follows still goes to the object. 0: the experts'
+    # own waypoints, where every grasp is straight below its approach. DART-style data (docs/learning.md): a policy
+    # trained on it sees approaches that are off and the grasp that corrects them.
+    pregrasp_jitter_m: float = 0.0
     # How shards run: "processes" (a process pool) or "datatrove" (DataTrove's local executor; optional extra).
     executor: str = "processes"
     # Show progress bars.
@@ -97,6 +102,8 @@ class CollectConfig:
             raise ValueError(f"--executor must be processes or datatrove, got {self.executor!r}")
         if self.render_threads < 0:
             raise ValueError(f"--render_threads must be >= 0, got {self.render_threads}")
+        if not 0 <= self.pregrasp_jitter_m < 0.1:
+            raise ValueError(f"--pregrasp_jitter_m must be in [0, 0.1) m, got {self.pregrasp_jitter_m}")
 
     def data_options(self) -> dict[str, str]:
         """The options that decide what a collection writes (all but :data:`RUN_OPTIONS`), as recorded in
@@ -147,6 +154,8 @@ class CollectConfig:
             "max_depth": render.max_depth,
             "model_seed": self.model_seed,
         }
+        if self.pregrasp_jitter_m:  # added later: shards collected without it keep their fingerprint
+            options["pregrasp_jitter_m"] = self.pregrasp_jitter_m
         blob = json.dumps(options, sort_keys=True)
         return hashlib.sha256(blob.encode()).hexdigest()[:16]
 

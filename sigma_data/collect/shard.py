@@ -70,6 +70,7 @@ def _provenance(cfg: CollectConfig, shards_tasks: list[str]) -> dict[str, Any]:
         "bounds": {t: list(get_task(t).bounds) for t in shards_tasks},
         "render": asdict(cfg.render.config()),
         "model_seed": cfg.model_seed,
+        "pregrasp_jitter_m": cfg.pregrasp_jitter_m,
         "fingerprint": cfg.fingerprint(),
     }
 
@@ -94,7 +95,13 @@ class _Recording:
 
 
 def _record(
-    env: Any, task: Any, variation: Any, spec: ShardSpec, seed: int, replay: ReplayRenderer | None
+    env: Any,
+    task: Any,
+    variation: Any,
+    spec: ShardSpec,
+    seed: int,
+    replay: ReplayRenderer | None,
+    pregrasp_jitter_m: float = 0.0,
 ) -> _Recording:
     """Reset ``env`` to ``seed``, run the expert without rendering and check success (and, for ``replay``, take
     the snapshot of the scene its frames render from)."""
@@ -104,7 +111,7 @@ def _record(
 
     start = time.perf_counter()
     reset_env(env, task, variation, seed)
-    recorder = EpisodeRecorder(env)
+    recorder = EpisodeRecorder(env, pregrasp_jitter_m=pregrasp_jitter_m)
     reason = ""
     try:
         task.expert(recorder, variation, np.random.default_rng(seed))
@@ -210,7 +217,7 @@ def collect_shard(
         # episode k (its frames render in the replay threads from a snapshot of the scene taken right after it was
         # recorded). Closed first on the way out: the recording thread stops before the writers finalize.
         recordings: Iterator[_Recording] = (
-            _record(env, task, variation, spec, seed, replay) for seed in spec.seeds
+            _record(env, task, variation, spec, seed, replay, cfg.pregrasp_jitter_m) for seed in spec.seeds
         )
         if replay is not None:
             recordings = stack.enter_context(contextlib.closing(_ahead(recordings)))

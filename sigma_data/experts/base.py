@@ -6,7 +6,10 @@ marks the end of every waypoint as an expert keyframe with its gripper-open and 
 It raises :class:`ExpertFailure` when it gives up; the pipeline drops and counts such episodes.
 
 :class:`WaypointArm` wraps the :mod:`sigma_data.control` primitives so an expert reads as its list of
-waypoints: ``arm.move(pos, quat, ignore_collision=...)``, ``arm.grip(open=...)``.
+waypoints: ``arm.move(pos, quat, ignore_collision=...)``, ``arm.grip(open=...)``. A waypoint passed with
+``approach=True`` (the pose above an object before the grasp) is moved by a random horizontal offset when the
+recorder asks for it (``pregrasp_jitter_m``, DART-style data: Laskey et al., "DART: Noise Injection for Robust
+Imitation Learning", CoRL 2017, https://arxiv.org/abs/1703.09327); the grasp after it still goes to the object.
 """
 
 from __future__ import annotations
@@ -39,6 +42,8 @@ class EpisodeRecorder(Protocol):
     """The recorder interface experts drive (implemented by ``sigma_data.record``)."""
 
     env: Any
+    # Radius (m) of the approach waypoints' random offset; optional (WaypointArm reads 0 where it is absent).
+    pregrasp_jitter_m: float
 
     def step(self, action: np.ndarray) -> None: ...
 
@@ -65,8 +70,11 @@ class WaypointArm:
         servo: ServoConfig = ServoConfig(),
         fail_pos_tol: float = 0.015,
         fail_rot_tol: float = 0.15,
+        rng: np.random.Generator | None = None,
     ):
         self.recorder = recorder
+        self.rng = rng
+        self.jitter_m = float(getattr(recorder, "pregrasp_jitter_m", 0.0))
         self.env = recorder.env
         self.servo = servo
         self.fail_pos_tol = fail_pos_tol
@@ -88,8 +96,12 @@ class WaypointArm:
         keyframe: bool = True,
         allow_stall: bool = False,
         pos_tol: float | None = None,
+        approach: bool = False,
     ) -> MoveResult:
-        """Servo to a waypoint (world grip-site pose) and mark it as a keyframe (unless ``keyframe=False``)."""
+        """Servo to a waypoint (world grip-site pose) and mark it as a keyframe (unless ``keyframe=False``). An
+        ``approach`` waypoint is first moved by :meth:`approach_offset`."""
+        if approach:
+            pos = np.asarray(pos, dtype=np.float64) + self.approach_offset()
         result = move_to(self.recorder, pos, quat_xyzw, self.grip_command, self.servo, max_steps=max_steps)
         fail_pos = self.fail_pos_tol if pos_tol is None else pos_tol
         off_target = result.pos_error > fail_pos or result.rot_error > self.fail_rot_tol
@@ -101,6 +113,16 @@ class WaypointArm:
         if keyframe:
             self.recorder.mark_keyframe(self.gripper_open, ignore_collision)
         return result
+
+    def approach_offset(self) -> np.ndarray:
+        """(3,) a horizontal offset uniform over the disc of radius ``pregrasp_jitter_m`` (zeros, and no draw from
+        the expert's generator, when it is 0)."""
+        if not self.jitter_m:
+            return np.zeros(3)
+        if self.rng is None:
+            raise ValueError("a recorder with pregrasp_jitter_m needs WaypointArm(..., rng=the expert's rng)")
+        angle, radius = self.rng.uniform(0, 2 * np.pi), self.jitter_m * np.sqrt(self.rng.uniform())
+        return np.array([radius * np.cos(angle), radius * np.sin(angle), 0.0])
 
     def grip(self, open: bool, ignore_collision: bool = True) -> int:
         """Open or close the gripper in place and mark the end as a keyframe. Returns steps taken."""

@@ -47,7 +47,7 @@ def _joint_frame(env, name: str) -> tuple[np.ndarray, np.ndarray]:
 
 def door_expert(recorder: EpisodeRecorder, variation: Variation, rng: np.random.Generator) -> None:
     env = recorder.env
-    arm = WaypointArm(recorder, fail_pos_tol=0.03, fail_rot_tol=0.3)
+    arm = WaypointArm(recorder, fail_pos_tol=0.03, fail_rot_tol=0.3, rng=rng)
     hinge_name, latch_name = env.door.joints[0], env.door.joints[1]
     latch_anchor, latch_axis = _joint_frame(env, latch_name)
     handle = np.array(env.sim.data.site_xpos[env.door_handle_site_id])

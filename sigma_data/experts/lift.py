@@ -34,11 +34,11 @@ def cube_grasp_quat(env, cube_rot: np.ndarray) -> np.ndarray:
 
 def lift_expert(recorder: EpisodeRecorder, variation: Variation, rng: np.random.Generator) -> None:
     env = recorder.env
-    arm = WaypointArm(recorder)
+    arm = WaypointArm(recorder, rng=rng)
     cube_pos, cube_rot = body_pose(env, env.cube.root_body)
     quat = cube_grasp_quat(env, cube_rot)
 
-    arm.move("pregrasp", cube_pos + [0, 0, PREGRASP_HEIGHT], quat, ignore_collision=False)
+    arm.move("pregrasp", cube_pos + [0, 0, PREGRASP_HEIGHT], quat, ignore_collision=False, approach=True)
     arm.move("grasp", cube_pos + [0, 0, GRASP_OFFSET], quat, ignore_collision=True)
     arm.grip(open=False)
     check_grasp(env, env.cube, "cube")

@@ -89,7 +89,7 @@ def plan_yaws(handle_yaw: float, hand_yaw: float, q7: float, directions: np.ndar
 
 def nut_assembly_expert(recorder: EpisodeRecorder, variation: Variation, rng: np.random.Generator) -> None:
     env = recorder.env
-    arm = WaypointArm(recorder)
+    arm = WaypointArm(recorder, rng=rng)
     nut = nut_object(env, variation.params["nut"])
     table_z = float(env.table_offset[2])
     peg_pos = np.array(env.sim.data.body_xpos[peg_body_id(env, variation.params["nut"])])
@@ -104,7 +104,7 @@ def nut_assembly_expert(recorder: EpisodeRecorder, variation: Variation, rng: np
 
     outward = (handle - centre) * [1, 1, 0]
     grasp = handle + HANDLE_OUTWARD * outward / np.linalg.norm(outward) + [0, 0, GRASP_OFFSET]
-    arm.move("pregrasp", grasp + [0, 0, PREGRASP_HEIGHT], quat, ignore_collision=False)
+    arm.move("pregrasp", grasp + [0, 0, PREGRASP_HEIGHT], quat, ignore_collision=False, approach=True)
     arm.move("grasp", grasp, quat, ignore_collision=True)
     arm.grip(open=False)
     check_grasp(env, nut, f"{variation.params['nut']} nut")

@@ -229,7 +229,7 @@ def settle(arm: WaypointArm, objects: Sequence[Any], max_steps: int = SETTLE_MAX
 
 def pick_place_expert(recorder: EpisodeRecorder, variation: Variation, rng: np.random.Generator) -> None:
     env = recorder.env
-    arm = WaypointArm(recorder)
+    arm = WaypointArm(recorder, rng=rng)
     name = variation.params["object"]
     index = object_index(env, name)
     obj = env.objects[index]
@@ -246,7 +246,7 @@ def pick_place_expert(recorder: EpisodeRecorder, variation: Variation, rng: np.r
 
     clutter_top = max(o[:, 2].max() for o in others)
     pregrasp_z = max(grasp[2] + PREGRASP_HEIGHT, clutter_top + PREGRASP_CLEARANCE)
-    arm.move("pregrasp", [*grasp[:2], pregrasp_z], quat, ignore_collision=False)
+    arm.move("pregrasp", [*grasp[:2], pregrasp_z], quat, ignore_collision=False, approach=True)
     arm.move("grasp", grasp, quat, ignore_collision=True)
     arm.grip(open=False)
     check_grasp(env, obj, name)

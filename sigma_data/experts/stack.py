@@ -39,7 +39,7 @@ def grasp_yaw_away_from(cube_yaw: float, toward: np.ndarray, current_yaw: float)
 
 def stack_expert(recorder: EpisodeRecorder, variation: Variation, rng: np.random.Generator) -> None:
     env = recorder.env
-    arm = WaypointArm(recorder)
+    arm = WaypointArm(recorder, rng=rng)
     top, bottom = cube(env, variation.params["top"]), cube(env, variation.params["bottom"])
     h_top, h_bottom = (
         cube_half_size(env, variation.params["top"]),
@@ -52,7 +52,7 @@ def stack_expert(recorder: EpisodeRecorder, variation: Variation, rng: np.random
         object_yaw(top_rot), bottom_pos[:2] - top_pos[:2], site_yaw(grip_site_frame(env)[1])
     )
     quat = top_down_quat(yaw)
-    arm.move("pregrasp", top_pos + [0, 0, PREGRASP_HEIGHT], quat, ignore_collision=False)
+    arm.move("pregrasp", top_pos + [0, 0, PREGRASP_HEIGHT], quat, ignore_collision=False, approach=True)
     arm.move("grasp", top_pos + [0, 0, GRASP_OFFSET], quat, ignore_collision=True)
     arm.grip(open=False)
     check_grasp(env, top, "top cube")

@@ -2,9 +2,13 @@
 
 from __future__ import annotations
 
+import json
+
 import draccus
+import pytest
 
 from benchmarks.bench_suite import SuiteBenchConfig, markdown
+from benchmarks.training_runs import collect_train_and_heldout
 
 
 def _result(seed: int, successes: dict[str, int]) -> dict:
@@ -109,3 +113,20 @@ def test_held_out_error_per_task_when_the_diagnostics_split_it():
     # Tasks in the suite's order; a seed without the split gets a dash; a task nobody measured gets no row.
     assert text.index("| lift | 0.22 (100%) | - |") < text.index("| stack | 0.42 (90%) | - |")
     assert "| pick_place |" not in text
+
+
+def test_jittered_demonstrations_are_named_and_never_mixed_with_clean_ones(tmp_path):
+    """``--pregrasp_jitter_m`` says so in the table's description, and training data on disk collected with another
+    jitter is refused rather than reused (the held-out seeds are always the experts' own)."""
+    cfg = draccus.parse(SuiteBenchConfig, args=["--pregrasp_jitter_m", "0.02", "--tasks", "[lift]"])
+    assert "approach waypoints moved up to 2 cm" in markdown(cfg, [_result(0, {"lift:lift_cube": 20})])
+    assert "moved up to" not in markdown(
+        SuiteBenchConfig(tasks=["lift"]), [_result(0, {"lift:lift_cube": 20})]
+    )
+    data = tmp_path / "train" / "data"
+    (data / "keyframe" / "meta").mkdir(parents=True)
+    (data / "keyframe" / "meta" / "info.json").write_text("{}")
+    # A collection made before the option existed: its record does not name it.
+    (data / "collect.json").write_text(json.dumps({"config": {"tasks": "lift"}}))
+    with pytest.raises(FileExistsError, match=r"pregrasp_jitter_m 0\.0, not 0\.02"):
+        collect_train_and_heldout(tmp_path, ["lift"], 2, 1, ["agentview"], 32, 1, "t", pregrasp_jitter_m=0.02)

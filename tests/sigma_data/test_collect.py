@@ -286,6 +286,31 @@ OLD_RECORD = {
 }
 
 
+def test_a_jittered_collection_moves_the_approach_and_is_kept_apart(first_run, tmp_path):
+    """``--pregrasp_jitter_m`` reaches the experts: each episode's first keyframe action (the approach) is off its
+    second (the grasp) sideways, where the experts' own are straight above; the shards are fingerprinted apart and a
+    collection made without it is not resumed with it."""
+    out, _ = first_run
+    jittered = replace(tiny(tmp_path / "dart", dense=False), pregrasp_jitter_m=0.02)
+    assert jittered.fingerprint() != tiny(tmp_path / "dart", dense=False).fingerprint()
+    assert collect(jittered).kept == 2
+
+    def sideways(root: Path) -> list[float]:
+        ds = LeRobotDataset("local/y", root=root, depth_output_unit="m", video_backend="pyav")
+        actions = np.stack([ds.hf_dataset[i]["action"] for i in range(len(ds))])
+        starts = [i for i in range(len(ds)) if int(ds.hf_dataset[i]["frame_index"]) == 0]
+        return [float(np.linalg.norm(actions[i, :2] - actions[i + 1, :2])) for i in starts]
+
+    assert all(d < 0.003 for d in sideways(out / "keyframe"))
+    assert all(0.002 < d < 0.025 for d in sideways(tmp_path / "dart" / "keyframe"))
+    assert read_sidecar(tmp_path / "dart" / "keyframe")["pregrasp_jitter_m"] == 0.02
+    assert read_sidecar(out / "keyframe")["pregrasp_jitter_m"] == 0.0
+    with pytest.raises(FileExistsError, match=r"pregrasp_jitter_m 0\.0 -> 0\.02"):
+        collect(replace(tiny(out), pregrasp_jitter_m=0.02))
+    with pytest.raises(ValueError, match="pregrasp_jitter_m"):
+        CollectConfig(pregrasp_jitter_m=-0.01)
+
+
 def test_grouped_options_keep_the_fingerprint_and_read_old_records(tmp_path):
     """Shards written before the options were grouped keep matching: the fingerprints below were computed with
     the flat CollectConfig; an old collect.json's names map onto today's."""
@@ -305,7 +330,8 @@ def test_grouped_options_keep_the_fingerprint_and_read_old_records(tmp_path):
     assert run.fingerprint() == cfg.fingerprint() and run.data_options() == cfg.data_options()
     mine = cfg.data_options()
     assert mine["render.height"] == "32" and mine["output.dense"] == "True" and "output.dir" not in mine
-    assert recorded_options(OLD_RECORD) == mine
+    # An option added since (pregrasp_jitter_m) is absent from the old record; resuming reads it as its default.
+    assert recorded_options(OLD_RECORD) | {"pregrasp_jitter_m": "0.0"} == mine
     assert recorded_options(mine) == mine
 
 

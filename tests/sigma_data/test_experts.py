@@ -3,12 +3,13 @@
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from types import SimpleNamespace
 
 import numpy as np
 import pytest
 
 from sigma_data.control import EnvDriver, gripper_width
-from sigma_data.experts.base import ExpertFailure
+from sigma_data.experts.base import ExpertFailure, WaypointArm
 from sigma_data.suite import get_task, get_variation, make_env, reset_env
 
 
@@ -19,6 +20,7 @@ class StateRecorder(EnvDriver):
 
     states: list[np.ndarray] = field(default_factory=list)
     labels: list[tuple[bool, bool]] = field(default_factory=list)
+    pregrasp_jitter_m: float = 0.0
 
     def step(self, action: np.ndarray) -> None:
         super().step(action)
@@ -29,14 +31,16 @@ class StateRecorder(EnvDriver):
         self.labels.append((gripper_open, ignore_collision))
 
 
-def run_expert(task_name: str, variation_name: str, seed: int, env=None) -> tuple[StateRecorder, bool]:
+def run_expert(
+    task_name: str, variation_name: str, seed: int, env=None, jitter_m: float = 0.0
+) -> tuple[StateRecorder, bool]:
     task = get_task(task_name)
     variation = get_variation(task, variation_name)
     own = env is None
     env = make_env(task) if own else env
     try:
         reset_env(env, task, variation, seed)
-        recorder = StateRecorder(env)
+        recorder = StateRecorder(env, pregrasp_jitter_m=jitter_m)
         task.expert(recorder, variation, np.random.default_rng(seed))
         return recorder, task.success(env, variation)
     finally:
@@ -96,6 +100,43 @@ def test_the_whole_grip_site_path_stays_inside_the_task_box(task_name: str, vari
             assert (path >= lo).all() and (path <= hi).all(), (path.min(0), path.max(0), task.bounds)
     finally:
         env.close()
+
+
+def test_jittered_approach_is_off_the_object_and_the_grasp_still_lands_on_it(lift_env):
+    """DART-style data (``pregrasp_jitter_m``): the approach keyframe is moved sideways by up to the radius, the
+    grasp keyframe after it is where the expert's own grasp is, and the cube is lifted; the heights and labels are
+    the expert's."""
+    clean, _ = run_expert("lift", "lift_cube", 0, env=lift_env)
+    offsets = []
+    for seed in range(3):
+        recorder, ok = run_expert("lift", "lift_cube", seed, env=lift_env, jitter_m=0.02)
+        assert ok, f"lift expert failed with a jittered approach on seed {seed}"
+        kf = np.array(recorder.keyframes)
+        assert recorder.labels == clean.labels
+        offsets.append(np.linalg.norm(kf[0, :2] - kf[1, :2]))
+        assert kf[0, 2] - kf[1, 2] == pytest.approx(0.08, abs=0.01)
+        if seed == 0:
+            grasp = np.array(clean.keyframes)[1, :3]
+            assert np.linalg.norm(kf[1, :3] - grasp) < 0.004, (
+                "the grasp goes to the cube, not below the approach"
+            )
+    assert max(offsets) < 0.02 + 0.004 and min(offsets) > 0.002, offsets  # the servo stops within ~2 mm
+    assert np.linalg.norm(np.array(clean.keyframes)[0, :2] - np.array(clean.keyframes)[1, :2]) < 0.003
+
+
+def test_the_approach_offset_is_uniform_over_the_disc_and_draws_nothing_when_off():
+    """Radius ``sqrt(U)``: a quarter of the offsets within half the radius, none beyond it, none vertical; with no
+    jitter the expert's generator is left as it was, so collections without it keep their data."""
+    rng = np.random.default_rng(0)
+    arm = WaypointArm(SimpleNamespace(env=None, pregrasp_jitter_m=0.02), rng=rng)
+    offsets = np.array([arm.approach_offset() for _ in range(4000)])
+    radius = np.linalg.norm(offsets[:, :2], axis=1)
+    assert np.all(offsets[:, 2] == 0) and radius.max() <= 0.02
+    assert np.mean(radius < 0.01) == pytest.approx(0.25, abs=0.03)
+    off = WaypointArm(SimpleNamespace(env=None, pregrasp_jitter_m=0.0), rng=np.random.default_rng(1))
+    assert np.all(off.approach_offset() == 0) and off.rng.uniform() == np.random.default_rng(1).uniform()
+    with pytest.raises(ValueError, match="rng"):
+        WaypointArm(SimpleNamespace(env=None, pregrasp_jitter_m=0.02)).approach_offset()
 
 
 def test_expert_failure_is_raised_not_hidden(lift_env):
