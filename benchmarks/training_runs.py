@@ -65,6 +65,7 @@ def collect_train_and_heldout(
     /heldout; a finished one is reused. ``pregrasp_jitter_m`` moves the experts' approach waypoints of the training
     seeds only: the held-out keyframes stay the experts' own. Returns the two dataset roots."""
     from pipelines.collecting import collect_demonstrations
+    from sigma_data.collect.config import RECORD
 
     roots = []
     for where, episodes, start in (("train", train_episodes, 0), ("heldout", heldout_episodes, 50_000)):
@@ -72,11 +73,12 @@ def collect_train_and_heldout(
         done = out / "data" / "keyframe"
         jitter = pregrasp_jitter_m if where == "train" else 0.0
         if (done / "meta" / "info.json").exists():
-            recorded = json.loads((out / "data" / "collect.json").read_text())["config"]
-            if float(recorded.get("pregrasp_jitter_m", 0.0)) != jitter:
+            options = json.loads((out / "data" / RECORD).read_text())["config"]
+            recorded = float(options.get("pregrasp_jitter_m", 0.0))  # absent: collected before the option
+            if recorded != jitter:
                 raise FileExistsError(
-                    f"{out / 'data'} was collected with pregrasp_jitter_m "
-                    f"{recorded.get('pregrasp_jitter_m', 0.0)}, not {jitter}: choose another --output_dir"
+                    f"{out / 'data'} was collected with pregrasp_jitter_m {recorded}, not {jitter}: "
+                    "choose another --output_dir"
                 )
         else:
             collect_demonstrations(
