@@ -95,23 +95,18 @@ def main(cfg: VisibilityConfig) -> dict:
         for scene in scenes:
             env.reset(seed=scene.seed)
             objects = {n: spec.points(env.env, get_variation(spec, n)) for n in names}
+            # The start frame is the same scene under every instruction: rendered once per scene.
+            rendered: dict[tuple[int, int], dict[tuple[bool, float], tuple[np.ndarray, np.ndarray]]] = {}
             for row, instruction, name in zip(scene.rows, scene.instructions, scene.variations, strict=True):
                 for frame in cfg.frames:
-                    item = kf.dataset[row + frame]
-                    obs = {k: v[None] for k, v in item.items() if k.startswith("observation.")}
-                    with torch.inference_mode():
-                        points, colors, bounds = policy.input_cloud(pre(obs | {"task": [instruction]}))
-                    state = item["observation.state"][None].float()
-                    for hand in cfg.hand_masks:
-                        kept = (
-                            drop_points(points, hand_points(points, state, PANDA_HAND_BOX))
-                            if hand
-                            else points
+                    key = (scene.rows[0] if frame == 0 else row, frame)
+                    if key not in rendered:
+                        rendered[key] = _frame_views(
+                            kf.dataset[row + frame], instruction, policy, pre, cfg, renderers
                         )
-                        for tilt, renderer in renderers.items():
-                            world, filled = _rendered(renderer, kept, colors, bounds[0])
-                            px = object_pixels(world, filled, objects[name], cfg.margin_m, cfg.floor_clear_m)
-                            counts[(tilt, frame, hand)][name].append(px)
+                    for (hand, tilt), (world, filled) in rendered[key].items():
+                        px = object_pixels(world, filled, objects[name], cfg.margin_m, cfg.floor_clear_m)
+                        counts[(tilt, frame, hand)][name].append(px)
     finally:
         env.close()
     report = {
@@ -129,6 +124,20 @@ def main(cfg: VisibilityConfig) -> dict:
     output.write_text(json.dumps(report, indent=2))
     print(table(report))
     return report
+
+
+def _frame_views(item: dict, instruction: str, policy, pre, cfg: VisibilityConfig, renderers: dict) -> dict:
+    """What each view shows of one dataset frame (:func:`_rendered`), per ``(hand mask, tilt)`` of ``cfg``."""
+    obs = {k: v[None] for k, v in item.items() if k.startswith("observation.")}
+    with torch.inference_mode():
+        points, colors, bounds = policy.input_cloud(pre(obs | {"task": [instruction]}))
+    state = item["observation.state"][None].float()
+    views = {}
+    for hand in cfg.hand_masks:
+        kept = drop_points(points, hand_points(points, state, PANDA_HAND_BOX)) if hand else points
+        for tilt, renderer in renderers.items():
+            views[(hand, tilt)] = _rendered(renderer, kept, colors, bounds[0])
+    return views
 
 
 def _rendered(

@@ -62,36 +62,29 @@ def collect_train_and_heldout(
     pregrasp_jitter_m: float = 0.0,
 ) -> tuple[Path, Path]:
     """Keyframe datasets of training seeds (from 0) and held-out seeds (from 50000) under ``output_dir``/train and
-    /heldout; a finished one is reused. ``pregrasp_jitter_m`` moves the experts' approach waypoints of the training
-    seeds only: the held-out keyframes stay the experts' own. Returns the two dataset roots."""
-    from pipelines.collecting import collect_demonstrations
-    from sigma_data.collect.config import RECORD
+    /heldout; a finished one is reused when it was collected with the same data options, and refused otherwise.
+    ``pregrasp_jitter_m`` moves the experts' approach waypoints of the training seeds only: the held-out keyframes
+    stay the experts' own. Returns the two dataset roots."""
+    from pipelines.collecting import collect_demonstrations, demonstration_config
+    from sigma_data.collect import option_changes
 
     roots = []
     for where, episodes, start in (("train", train_episodes, 0), ("heldout", heldout_episodes, 50_000)):
         out = output_dir / where
         done = out / "data" / "keyframe"
-        jitter = pregrasp_jitter_m if where == "train" else 0.0
+        args = (out, tasks, episodes, cameras, image_size, workers, f"local/{name}_{where}")
+        options = {
+            "dense": False,
+            "start_seed": start,
+            "pregrasp_jitter_m": pregrasp_jitter_m if where == "train" else 0.0,
+        }
         if (done / "meta" / "info.json").exists():
-            options = json.loads((out / "data" / RECORD).read_text())["config"]
-            recorded = float(options.get("pregrasp_jitter_m", 0.0))  # absent: collected before the option
-            if recorded != jitter:
+            changes = option_changes(out / "data", demonstration_config(*args, **options))
+            if changes:
                 raise FileExistsError(
-                    f"{out / 'data'} was collected with pregrasp_jitter_m {recorded}, not {jitter}: "
-                    "choose another --output_dir"
+                    f"{out / 'data'} was collected with other options ({changes}): choose another --output_dir"
                 )
         else:
-            collect_demonstrations(
-                out,
-                tasks,
-                episodes,
-                cameras,
-                image_size,
-                workers,
-                f"local/{name}_{where}",
-                dense=False,
-                start_seed=start,
-                pregrasp_jitter_m=jitter,
-            )
+            collect_demonstrations(*args, **options)
         roots.append(done)
     return roots[0], roots[1]

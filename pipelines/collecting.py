@@ -5,10 +5,13 @@ Tasks are named as ``sigma-eval`` names them: ``"pick_place"`` (every variation)
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
+
+if TYPE_CHECKING:
+    from sigma_data.collect import CollectConfig
 
 
-def collect_demonstrations(
+def demonstration_config(
     output_dir: Path,
     tasks: list[str],
     episodes: int,
@@ -19,27 +22,33 @@ def collect_demonstrations(
     start_seed: int = 0,
     pregrasp_jitter_m: float = 0.0,
     **output: Any,
-) -> dict[str, Path]:
-    """Collect ``episodes`` seeds per variation of ``tasks`` (from ``start_seed``; the experts' approach waypoints
-    moved by up to ``pregrasp_jitter_m``, ``sigma-data collect --pregrasp_jitter_m``); ``output`` are further
-    ``--output.*`` fields (``dense=False``, ``dense_depth=False``...). Returns the written datasets by kind."""
+) -> CollectConfig:
+    """The ``sigma-data collect`` options of ``episodes`` seeds per variation of ``tasks`` (from ``start_seed``; the
+    experts' approach waypoints moved by up to ``pregrasp_jitter_m``) into ``output_dir``/data; ``output`` are
+    further ``--output.*`` fields (``dense=False``, ``dense_depth=False``...)."""
     from sigma_data.cameras import RenderOptions
-    from sigma_data.collect import CollectConfig, CollectOutputConfig, collect
+    from sigma_data.collect import CollectConfig, CollectOutputConfig
 
     names, variations = split_variations(tasks)
-    summary = collect(
-        CollectConfig(
-            tasks=",".join(names),
-            variations=variations,
-            episodes=episodes,
-            start_seed=start_seed,
-            output=CollectOutputConfig(dir=Path(output_dir) / "data", repo_id=repo_id, **output),
-            render=RenderOptions(cameras=",".join(cameras), height=image_size, width=image_size),
-            workers=workers,
-            pregrasp_jitter_m=pregrasp_jitter_m,
-            progress=False,
-        )
+    return CollectConfig(
+        tasks=",".join(names),
+        variations=variations,
+        episodes=episodes,
+        start_seed=start_seed,
+        output=CollectOutputConfig(dir=Path(output_dir) / "data", repo_id=repo_id, **output),
+        render=RenderOptions(cameras=",".join(cameras), height=image_size, width=image_size),
+        workers=workers,
+        pregrasp_jitter_m=pregrasp_jitter_m,
+        progress=False,
     )
+
+
+def collect_demonstrations(*args: Any, **kwargs: Any) -> dict[str, Path]:
+    """Collect what :func:`demonstration_config` describes (the same arguments), printing the summary line. Returns
+    the written datasets by kind; an empty collection raises ``RuntimeError``."""
+    from sigma_data.collect import collect
+
+    summary = collect(demonstration_config(*args, **kwargs))
     print(summary.line(), flush=True)
     if summary.kept == 0:
         raise RuntimeError("the experts produced no successful episode; nothing to train on")

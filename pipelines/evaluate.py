@@ -62,6 +62,9 @@ class EvalConfig:
     output_dir: Path = Path("outputs/eval")
     # Save a Rerun recording (.rrd) of every rollout: virtual views, heatmaps, predictions per keyframe.
     rerun: bool = False
+    # The test-time yaw ensemble's extra angles (degrees; the policy's `tta_yaw_deg`, sigma_policy/test_time.py);
+    # None: the checkpoint's own (off unless it was trained with them set).
+    tta_yaw_deg: list[float] | None = None
 
 
 @dataclass(frozen=True)
@@ -208,6 +211,8 @@ class _Worker:
         torch.set_num_threads(max(1, (os.cpu_count() or 1) // max(1, cfg.workers)))
         self.cfg = cfg
         self.policy, self.pre, self.post = load_policy(cfg.checkpoint, cfg.device)
+        if cfg.tta_yaw_deg is not None:  # checked in run_eval
+            self.policy.config.tta_yaw_deg = [float(a) for a in cfg.tta_yaw_deg]
         self.cameras = tuple(self.policy.config.camera_names())
         self.image_size = self._image_size()
         self.envs: dict[str, Any] = {}
@@ -506,6 +511,11 @@ def run_eval(cfg: EvalConfig) -> dict:
     if cfg.episodes < 1 or cfg.max_keyframes < 1 or cfg.workers < 1:
         raise ValueError("--episodes, --max_keyframes and --workers must be >= 1")
     check_checkpoint(cfg.checkpoint)  # here, not in a pool worker: a bad file is one clear error
+    if cfg.tta_yaw_deg is not None:
+        from sigma_policy.test_time import check_yaw_angles
+
+        bins = json.loads((Path(cfg.checkpoint) / "config.json").read_text()).get("num_rotation_bins", 72)
+        check_yaw_angles(cfg.tta_yaw_deg, bins)  # ValueError naming the angles
     jobs = plan_jobs(cfg)
     cfg.output_dir = Path(cfg.output_dir)
     cfg.output_dir.mkdir(parents=True, exist_ok=True)
@@ -538,7 +548,7 @@ def main(argv: list[str] | None = None) -> int:
     cfg = draccus.parse(EvalConfig, args=sys.argv[1:] if argv is None else argv)
     try:
         summary = run_eval(cfg)
-    except CheckpointError as e:
+    except (CheckpointError, ValueError) as e:  # a bad checkpoint or option: one line, before any episode
         print(f"sigma-eval: {e}", file=sys.stderr)
         return 1
     print(markdown_table(summary))

@@ -55,6 +55,17 @@ def arm_joint_velocities(env: Any) -> np.ndarray:
     return np.array(env.sim.data.qvel[env.robots[0]._ref_joint_vel_indexes], dtype=np.float64)
 
 
+# The largest approach offset an expert's plan is made for: beyond it the approach may leave the object's bin.
+MAX_PREGRASP_JITTER_M = 0.1
+
+
+def check_pregrasp_jitter(radius_m: float) -> float:
+    """``radius_m`` as a float when it is a radius in [0, :data:`MAX_PREGRASP_JITTER_M`) metres, else ValueError."""
+    if not (np.isfinite(radius_m) and 0 <= radius_m < MAX_PREGRASP_JITTER_M):
+        raise ValueError(f"pregrasp_jitter_m must be in [0, {MAX_PREGRASP_JITTER_M}) m, got {radius_m}")
+    return float(radius_m)
+
+
 class EpisodeRecorder:
     """Steps a robosuite env and records states, actions and keyframe marks (the ``tasks_api`` protocol).
 
@@ -65,10 +76,8 @@ class EpisodeRecorder:
     """
 
     def __init__(self, env: Any, initial_gripper_open: bool = True, pregrasp_jitter_m: float = 0.0):
-        if not (np.isfinite(pregrasp_jitter_m) and pregrasp_jitter_m >= 0):
-            raise ValueError(f"pregrasp_jitter_m must be a finite distance >= 0 m, got {pregrasp_jitter_m}")
         self.env = env
-        self.pregrasp_jitter_m = float(pregrasp_jitter_m)
+        self.pregrasp_jitter_m = check_pregrasp_jitter(pregrasp_jitter_m)
         self._gripper_open = bool(initial_gripper_open)
         self._sim_states: list[np.ndarray] = []
         self._states: list[np.ndarray] = []

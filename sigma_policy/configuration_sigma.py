@@ -122,6 +122,7 @@ from sigma_data.contract import (  # the data contract: the only sigma_data modu
 )
 from sigma_policy.lamb import LambConfig
 from sigma_policy.network import VIEW_CHANNELS, NetworkConfig
+from sigma_policy.test_time import check_yaw_angles
 
 PRESETS: dict[str, dict[str, Any]] = {
     "paper": {
@@ -310,6 +311,12 @@ class SigmaConfig(PreTrainedConfig):
     logit_scale_max: float | None = None
     projection_activation: bool = True
     place_with_mean_at_eval: bool = False
+    # Test-time yaw ensemble (inference only; sigma_policy/test_time.py): besides the observation as it is, the
+    # policy predicts on it turned by each of these angles (degrees, multiples of the rotation bins' width) about
+    # the box's vertical centre line and the passes vote, the winner's neighbours within ``tta_radius_m`` metres
+    # averaged. [] = off (every preset); each angle adds one inference pass.
+    tta_yaw_deg: list[float] = field(default_factory=list)
+    tta_radius_m: float = 0.02
     # Sub-voxel refinement of the translation at inference: centroid of the score profiles within this many
     # voxels of the argmax (sigma_policy/heatmap.py); 0 = the argmax voxel centre (RVT). None = from preset
     # (paper 0, small 2).
@@ -404,6 +411,9 @@ class SigmaConfig(PreTrainedConfig):
             )
         if not self.hand_site_noise_m >= 0.0:
             raise ValueError(f"policy.hand_site_noise_m must be >= 0, got {self.hand_site_noise_m}")
+        self.tta_yaw_deg = check_yaw_angles(self.tta_yaw_deg, self.num_rotation_bins)
+        if not self.tta_radius_m > 0.0:
+            raise ValueError(f"policy.tta_radius_m must be > 0, got {self.tta_radius_m}")
         self.network_config()  # validates the architecture numbers early
 
     # ------------------------------------------------------------------ LeRobot hooks

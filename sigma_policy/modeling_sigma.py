@@ -51,6 +51,13 @@ from sigma_policy.pointcloud import (
 )
 from sigma_policy.renderer import VIEW_NAMES, VirtualViewRenderer
 from sigma_policy.rotation import bins_to_quat, quat_to_bins, quat_to_matrix
+from sigma_policy.test_time import (
+    EnsemblePass,
+    consensus,
+    roll_yaw_bins,
+    transform_points,
+    yaw_about_box_centre,
+)
 from sigma_policy.text_encoder import make_text_encoder
 
 
@@ -334,37 +341,74 @@ class SigmaPolicy(PreTrainedPolicy):
     # ------------------------------------------------------------------ inference
     @torch.no_grad()
     def predict(self, batch: dict[str, Any]) -> SigmaPrediction:
-        """Deterministic prediction (no augmentation, no render noise) with everything needed to visualise it."""
+        """Deterministic prediction (no augmentation, no render noise) with everything needed to visualise it;
+        with ``tta_yaw_deg`` the turned passes vote on the action (sigma_policy/test_time.py), and the views and
+        heatmaps are the unturned pass's."""
         cfg = self.config
         cloud, tasks, bounds = self._inference_scene(batch)
-        views = self._render(cloud.points, cloud.colors, bounds, cloud.hand)
-        if cfg.hand_marker:
-            views = self._mark_hand(views, self._site(batch, 0), bounds)
-        out = self._run_network(views, tasks, batch, bounds)
-        trans = out.trans.float()
-        point_cube = heatmap_to_cube_point(
-            trans, cfg.img_size, refine_px=cfg.heatmap_refine_px, side_tilt_deg=cfg.side_tilt_deg
+        views, out, point_cube = self._predict_pass(cloud, tasks, bounds, batch)
+        best = EnsemblePass(
+            point=cube_to_world(point_cube, bounds),
+            rotation_probs=torch.softmax(out.rot_logits.float(), -1),
+            gripper_probs=torch.softmax(out.grip_logits.float(), -1),
+            collision_probs=torch.softmax(out.collision_logits.float(), -1),
         )
-        point_world = cube_to_world(point_cube, bounds)
-        rot_bins = out.rot_logits.argmax(-1)
+        if cfg.tta_yaw_deg:
+            passes = [best]
+            for degrees in cfg.tta_yaw_deg:
+                T = yaw_about_box_centre(bounds, degrees)
+                turned = _Cloud(transform_points(T, cloud.points), cloud.colors, cloud.hand)
+                _, out_k, cube_k = self._predict_pass(turned, tasks, bounds, batch, T)
+                passes.append(
+                    EnsemblePass(
+                        point=transform_points(T, cube_to_world(cube_k, bounds), inverse=True),
+                        rotation_probs=roll_yaw_bins(torch.softmax(out_k.rot_logits.float(), -1), degrees),
+                        gripper_probs=torch.softmax(out_k.grip_logits.float(), -1),
+                        collision_probs=torch.softmax(out_k.collision_logits.float(), -1),
+                    )
+                )
+            best = consensus(passes, cfg.tta_radius_m)
+        point_world = best.point
+        rot_bins = best.rotation_probs.argmax(-1)
         quat = bins_to_quat(rot_bins, cfg.num_rotation_bins)
-        grip = out.grip_logits.argmax(-1, keepdim=True).float()
-        coll = out.collision_logits.argmax(-1, keepdim=True).float()
+        grip = best.gripper_probs.argmax(-1, keepdim=True).float()
+        coll = best.collision_probs.argmax(-1, keepdim=True).float()
         action = torch.cat([point_world, quat.to(point_world.dtype), grip, coll], dim=-1)
+        trans = out.trans.float()
         return SigmaPrediction(
             action=action,
             views=views,
             heatmaps=torch.softmax(trans.flatten(2), -1).reshape(trans.shape),
-            point_cube=point_cube,
+            point_cube=world_to_cube(point_world, bounds) if cfg.tta_yaw_deg else point_cube,
             point_world=point_world,
             rotation_bins=rot_bins,
             bounds=bounds,
-            rotation_probs=torch.softmax(out.rot_logits.float(), -1),
-            gripper_probs=torch.softmax(out.grip_logits.float(), -1),
-            collision_probs=torch.softmax(out.collision_logits.float(), -1),
+            rotation_probs=best.rotation_probs,
+            gripper_probs=best.gripper_probs,
+            collision_probs=best.collision_probs,
             cloud_points=cloud.points,
             cloud_colors=cloud.colors,
         )
+
+    def _predict_pass(
+        self,
+        cloud: _Cloud,
+        tasks: list[str],
+        bounds: Tensor,
+        batch: dict[str, Any],
+        transforms: Tensor | None = None,
+    ) -> tuple[Tensor, NetworkOutput, Tensor]:
+        """One inference pass over ``cloud`` (already moved by ``transforms`` (B, 4, 4), which the gripper's pose is
+        moved by too): the rendered views, the network's output and the predicted cube point (B, 3)."""
+        cfg = self.config
+        views = self._render(cloud.points, cloud.colors, bounds, cloud.hand)
+        if cfg.hand_marker:
+            views = self._mark_hand(views, self._site(batch, 0, transforms), bounds)
+        out = self._run_network(views, tasks, batch, bounds, transforms=transforms)
+        point_cube = heatmap_to_cube_point(
+            out.trans.float(), cfg.img_size, refine_px=cfg.heatmap_refine_px, side_tilt_deg=cfg.side_tilt_deg
+        )
+        return views, out, point_cube
 
     @torch.no_grad()
     def input_cloud(self, batch: dict[str, Any]) -> tuple[Tensor, Tensor, Tensor]:

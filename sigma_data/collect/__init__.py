@@ -46,7 +46,13 @@ from sigma_data.collect.config import (
 from sigma_data.collect.envs import build_env, cached_env, cached_replay, check_cameras_exist, close_envs
 from sigma_data.collect.manifest import shard_files
 from sigma_data.collect.merge import merge_shards
-from sigma_data.collect.planning import check_shard, claim_output_dir, finished_shard, plan_shards
+from sigma_data.collect.planning import (
+    check_shard,
+    claim_output_dir,
+    finished_shard,
+    option_changes,
+    plan_shards,
+)
 from sigma_data.collect.run import collect
 from sigma_data.collect.scheduler import Helpers
 from sigma_data.collect.shard import collect_shard
@@ -73,6 +79,7 @@ __all__ = [
     "collect_shard",
     "finished_shard",
     "merge_shards",
+    "option_changes",
     "plan_shards",
     "shard_files",
 ]

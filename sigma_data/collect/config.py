@@ -13,6 +13,7 @@ from typing import Any
 
 from sigma_data.cameras import RenderOptions
 from sigma_data.output import OutputConfig
+from sigma_data.record import check_pregrasp_jitter
 
 # A shard's completion marker: its ShardResult and the files it wrote (written last, after the datasets).
 MARKER = "shard.json"
@@ -102,8 +103,7 @@ class CollectConfig:
             raise ValueError(f"--executor must be processes or datatrove, got {self.executor!r}")
         if self.render_threads < 0:
             raise ValueError(f"--render_threads must be >= 0, got {self.render_threads}")
-        if not 0 <= self.pregrasp_jitter_m < 0.1:
-            raise ValueError(f"--pregrasp_jitter_m must be in [0, 0.1) m, got {self.pregrasp_jitter_m}")
+        check_pregrasp_jitter(self.pregrasp_jitter_m)
 
     def data_options(self) -> dict[str, str]:
         """The options that decide what a collection writes (all but :data:`RUN_OPTIONS`), as recorded in

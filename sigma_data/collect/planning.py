@@ -75,6 +75,16 @@ def entries(out: Path) -> list[str]:
     return sorted(p.name for p in out.iterdir() if p.name != RECORD_TMP)
 
 
+def option_changes(out: Path, cfg: CollectConfig) -> str:
+    """How the data options recorded in ``out``'s ``collect.json`` differ from ``cfg``'s, as ``"name recorded ->
+    wanted, ..."``; empty when they agree. An option added since that collection counts as its default then."""
+    previous = recorded_options(json.loads((out / RECORD).read_text()).get("config", {}))
+    defaults = CollectConfig().data_options()
+    mine = cfg.data_options()
+    differ = [k for k in mine if previous.get(k, defaults[k]) != mine[k]]
+    return ", ".join(f"{k} {previous.get(k, defaults[k])} -> {mine[k]}" for k in differ)
+
+
 def claim_output_dir(cfg: CollectConfig) -> None:
     """Make sure ``output.dir`` holds nothing but this collection (or a resumable run of it), then record the
     options in ``collect.json`` before any shard is written. Anything else there raises ``FileExistsError``
@@ -91,11 +101,8 @@ def claim_output_dir(cfg: CollectConfig) -> None:
             raise FileExistsError(
                 f"{out} is not empty ({', '.join(present[:5])}) and holds no {RECORD}: {hint}"
             )
-        previous = recorded_options(json.loads(record.read_text()).get("config", {}))
-        defaults = CollectConfig().data_options()  # options added since that run
-        differ = [k for k in mine if previous.get(k, defaults[k]) != mine[k]]
-        if differ:
-            changes = ", ".join(f"{k} {previous.get(k, defaults[k])} -> {mine[k]}" for k in differ)
+        changes = option_changes(out, cfg)
+        if changes:
             raise FileExistsError(f"{out} holds a collection made with other options ({changes}): {hint}")
     if present and cfg.output.overwrite:
         for name in ("dense", "keyframe", "shards", RECORD, RECORD_TMP):

@@ -9,6 +9,7 @@ import pytest
 
 from benchmarks.bench_suite import SuiteBenchConfig, markdown
 from benchmarks.training_runs import collect_train_and_heldout
+from pipelines.collecting import demonstration_config
 
 
 def _result(seed: int, successes: dict[str, int]) -> dict:
@@ -123,10 +124,21 @@ def test_jittered_demonstrations_are_named_and_never_mixed_with_clean_ones(tmp_p
     assert "moved up to" not in markdown(
         SuiteBenchConfig(tasks=["lift"]), [_result(0, {"lift:lift_cube": 20})]
     )
-    data = tmp_path / "train" / "data"
-    (data / "keyframe" / "meta").mkdir(parents=True)
-    (data / "keyframe" / "meta" / "info.json").write_text("{}")
-    # A collection made before the option existed: its record does not name it.
-    (data / "collect.json").write_text(json.dumps({"config": {"tasks": "lift"}}))
-    with pytest.raises(FileExistsError, match=r"pregrasp_jitter_m 0\.0, not 0\.02"):
+    # Finished collections of the clean experts, recorded as collect.json records them.
+    for where, episodes, start in (("train", 2, 0), ("heldout", 1, 50_000)):
+        data = tmp_path / where / "data"
+        (data / "keyframe" / "meta").mkdir(parents=True)
+        (data / "keyframe" / "meta" / "info.json").write_text("{}")
+        options = demonstration_config(
+            tmp_path / where, ["lift"], episodes, ["agentview"], 32, 1, f"local/t_{where}", dense=False,
+            start_seed=start,
+        ).data_options()  # fmt: skip
+        (data / "collect.json").write_text(json.dumps({"config": options}))
+    reused = collect_train_and_heldout(tmp_path, ["lift"], 2, 1, ["agentview"], 32, 1, "t")
+    assert reused == (tmp_path / "train" / "data" / "keyframe", tmp_path / "heldout" / "data" / "keyframe")
+    with pytest.raises(
+        FileExistsError, match=r"train/data was collected with other options \(render\.height 32 -> 48"
+    ):
+        collect_train_and_heldout(tmp_path, ["lift"], 2, 1, ["agentview"], 48, 1, "t")
+    with pytest.raises(FileExistsError, match=r"other options \(pregrasp_jitter_m 0\.0 -> 0\.02\)"):
         collect_train_and_heldout(tmp_path, ["lift"], 2, 1, ["agentview"], 32, 1, "t", pregrasp_jitter_m=0.02)

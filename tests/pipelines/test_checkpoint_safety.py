@@ -98,3 +98,12 @@ def test_nan_weights_are_named(checkpoint, tmp_path):
     save_file(tensors, ckpt / "model.safetensors")
     with pytest.raises(CheckpointError, match=f"tensor '{name}' holds NaN or inf"):
         check_checkpoint(ckpt)
+
+
+def test_test_time_yaws_off_the_rotation_bins_are_one_clear_error_before_any_episode(
+    checkpoint, tmp_path, capsys
+):
+    out = tmp_path / "eval"
+    assert main([f"--checkpoint={checkpoint}", "--tta_yaw_deg=[15,7]", f"--output_dir={out}"]) == 1
+    assert "multiples of the 5° rotation bins, got [7.0]" in capsys.readouterr().err
+    assert not out.exists()

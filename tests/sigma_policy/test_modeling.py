@@ -15,8 +15,9 @@ from lerobot.policies.factory import make_policy, make_pre_post_processors
 
 from sigma_policy.configuration_sigma import SigmaConfig
 from sigma_policy.modeling_sigma import SigmaPolicy
-from sigma_policy.pointcloud import world_to_cube
+from sigma_policy.pointcloud import cube_to_world, world_to_cube
 from sigma_policy.rotation import quat_to_matrix
+from sigma_policy.test_time import transform_points
 from tests.sigma_policy.tiny_dataset import BOUNDS, write_tiny_keyframe_dataset
 
 FAST = {"preset": "small", "img_size": 32, "patch_size": 8, "attn_dim": 64, "attn_heads": 2}
@@ -149,6 +150,50 @@ def test_input_cloud_is_what_predict_renders_without_running_the_network(tiny_ro
     torch.testing.assert_close(points, pred.cloud_points, equal_nan=True)
     torch.testing.assert_close(colors, pred.cloud_colors)
     torch.testing.assert_close(bounds, pred.bounds)
+
+
+def test_yaw_ensemble_turns_the_cloud_and_the_hand_and_turns_each_prediction_back(tiny_root):
+    """``tta_yaw_deg``: each extra pass renders the cloud turned about the box's centre line, with the gripper's
+    pose the proprio token reads turned with it; with a radius that takes every pass in, the action's position is
+    the mean of the passes' points turned back."""
+    _, policy, pre, _, _ = build(tiny_root, tta_yaw_deg=[-90, 45], tta_radius_m=10.0)
+    policy.eval()
+    obs = pre(single_observation(tiny_root, 1))
+    passes, proprios = [], []
+    run_pass, proprio = policy._predict_pass, policy._proprio
+
+    def spy_pass(cloud, tasks, bounds, batch, transforms=None):
+        out = run_pass(cloud, tasks, bounds, batch, transforms)
+        passes.append((cloud.points, transforms, cube_to_world(out[2], bounds)))
+        return out
+
+    def spy_proprio(batch, bounds, transforms, site=None):
+        proprios.append(proprio(batch, bounds, transforms, site))
+        return proprios[-1]
+
+    policy._predict_pass, policy._proprio = spy_pass, spy_proprio
+    pred = policy.predict(obs)
+    assert len(passes) == 3 and passes[0][1] is None
+    centre = (pred.bounds[:, :3] + pred.bounds[:, 3:]) / 2
+    for (points, T, _), degrees in zip(passes[1:], (-90, 45), strict=True):
+        torch.testing.assert_close(points, transform_points(T, pred.cloud_points), equal_nan=True)
+        torch.testing.assert_close(transform_points(T, centre), centre)
+        assert torch.rad2deg(torch.atan2(T[0, 1, 0], T[0, 0, 0])).item() == pytest.approx(degrees)
+    # proprio = [gripper (3), grip site in the box (3), orientation columns (6)]: the turned passes' site moved
+    assert not torch.allclose(proprios[1][:, 3:6], proprios[0][:, 3:6])
+    back = [passes[0][2]] + [transform_points(T, p, inverse=True) for _, T, p in passes[1:]]
+    torch.testing.assert_close(pred.action[:, :3], torch.stack(back).mean(0))
+
+
+def test_yaw_ensemble_whose_passes_all_disagree_acts_as_the_unturned_pass(tiny_root):
+    _, policy, pre, _, _ = build(tiny_root)
+    policy.eval()
+    obs = pre(single_observation(tiny_root, 1))
+    plain = policy.predict(obs)
+    policy.config.tta_yaw_deg, policy.config.tta_radius_m = [-30, 30], 1e-9
+    ensembled = policy.predict(obs)
+    torch.testing.assert_close(ensembled.action, plain.action)
+    torch.testing.assert_close(ensembled.point_cube, plain.point_cube)
 
 
 def test_calibration_keys_survive_the_preprocessor_unnormalised(tiny_root):
