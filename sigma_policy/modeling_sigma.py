@@ -346,28 +346,10 @@ class SigmaPolicy(PreTrainedPolicy):
         heatmaps are the unturned pass's."""
         cfg = self.config
         cloud, tasks, bounds = self._inference_scene(batch)
-        views, out, point_cube = self._predict_pass(cloud, tasks, bounds, batch)
-        best = EnsemblePass(
-            point=cube_to_world(point_cube, bounds),
-            rotation_probs=torch.softmax(out.rot_logits.float(), -1),
-            gripper_probs=torch.softmax(out.grip_logits.float(), -1),
-            collision_probs=torch.softmax(out.collision_logits.float(), -1),
-        )
+        views, out, best = self._predict_pass(cloud, tasks, bounds, batch)
         if cfg.tta_yaw_deg:
-            passes = [best]
-            for degrees in cfg.tta_yaw_deg:
-                T = yaw_about_box_centre(bounds, degrees)
-                turned = _Cloud(transform_points(T, cloud.points), cloud.colors, cloud.hand)
-                _, out_k, cube_k = self._predict_pass(turned, tasks, bounds, batch, T)
-                passes.append(
-                    EnsemblePass(
-                        point=transform_points(T, cube_to_world(cube_k, bounds), inverse=True),
-                        rotation_probs=roll_yaw_bins(torch.softmax(out_k.rot_logits.float(), -1), degrees),
-                        gripper_probs=torch.softmax(out_k.grip_logits.float(), -1),
-                        collision_probs=torch.softmax(out_k.collision_logits.float(), -1),
-                    )
-                )
-            best = consensus(passes, cfg.tta_radius_m)
+            turned = [self._predict_pass(cloud, tasks, bounds, batch, d)[2] for d in cfg.tta_yaw_deg]
+            best = consensus([best, *turned], cfg.tta_radius_m)
         point_world = best.point
         rot_bins = best.rotation_probs.argmax(-1)
         quat = bins_to_quat(rot_bins, cfg.num_rotation_bins)
@@ -379,7 +361,7 @@ class SigmaPolicy(PreTrainedPolicy):
             action=action,
             views=views,
             heatmaps=torch.softmax(trans.flatten(2), -1).reshape(trans.shape),
-            point_cube=world_to_cube(point_world, bounds) if cfg.tta_yaw_deg else point_cube,
+            point_cube=world_to_cube(point_world, bounds),
             point_world=point_world,
             rotation_bins=rot_bins,
             bounds=bounds,
@@ -391,24 +373,33 @@ class SigmaPolicy(PreTrainedPolicy):
         )
 
     def _predict_pass(
-        self,
-        cloud: _Cloud,
-        tasks: list[str],
-        bounds: Tensor,
-        batch: dict[str, Any],
-        transforms: Tensor | None = None,
-    ) -> tuple[Tensor, NetworkOutput, Tensor]:
-        """One inference pass over ``cloud`` (already moved by ``transforms`` (B, 4, 4), which the gripper's pose is
-        moved by too): the rendered views, the network's output and the predicted cube point (B, 3)."""
+        self, cloud: _Cloud, tasks: list[str], bounds: Tensor, batch: dict[str, Any], degrees: float = 0.0
+    ) -> tuple[Tensor, NetworkOutput, EnsemblePass]:
+        """One inference pass over ``cloud`` turned by ``degrees`` about the box's vertical centre line (and the
+        gripper's pose with it; sigma_policy/test_time.py): the rendered views, the network's output and the
+        prediction turned back into the observation's frame."""
         cfg = self.config
-        views = self._render(cloud.points, cloud.colors, bounds, cloud.hand)
+        T = yaw_about_box_centre(bounds, degrees) if degrees else None
+        points = transform_points(T, cloud.points) if T is not None else cloud.points
+        views = self._render(points, cloud.colors, bounds, cloud.hand)
         if cfg.hand_marker:
-            views = self._mark_hand(views, self._site(batch, 0, transforms), bounds)
-        out = self._run_network(views, tasks, batch, bounds, transforms=transforms)
+            views = self._mark_hand(views, self._site(batch, 0, T), bounds)
+        out = self._run_network(views, tasks, batch, bounds, transforms=T)
         point_cube = heatmap_to_cube_point(
             out.trans.float(), cfg.img_size, refine_px=cfg.heatmap_refine_px, side_tilt_deg=cfg.side_tilt_deg
         )
-        return views, out, point_cube
+        point = cube_to_world(point_cube, bounds)
+        rotation_probs = torch.softmax(out.rot_logits.float(), -1)
+        if T is not None:
+            point = transform_points(T, point, inverse=True)
+            rotation_probs = roll_yaw_bins(rotation_probs, degrees)
+        prediction = EnsemblePass(
+            point=point,
+            rotation_probs=rotation_probs,
+            gripper_probs=torch.softmax(out.grip_logits.float(), -1),
+            collision_probs=torch.softmax(out.collision_logits.float(), -1),
+        )
+        return views, out, prediction
 
     @torch.no_grad()
     def input_cloud(self, batch: dict[str, Any]) -> tuple[Tensor, Tensor, Tensor]:
@@ -577,8 +568,7 @@ class SigmaPolicy(PreTrainedPolicy):
         pos = self._take(batch, OBS_STATE, t, 1).float()[:, :3].to(self._device)
         if transforms is None:
             return pos
-        transforms = transforms.to(pos)
-        return torch.einsum("bij,bj->bi", transforms[:, :3, :3], pos) + transforms[:, :3, 3]
+        return transform_points(transforms, pos)
 
     def _mark_hand(self, views: Tensor, site: Tensor, bounds: Tensor) -> Tensor:
         """``views`` (B, V, C, H, W) and the hand marker (``hand_marker``) as channel C: a Gaussian of peak 1 at the

@@ -45,14 +45,19 @@ class EnsemblePass:
     collision_probs: Tensor  # (B, 2)
 
 
+def _off_bins(degrees: float, num_bins: int) -> bool:
+    """Whether ``degrees`` is not a whole number of the ``360 / num_bins`` rotation bins."""
+    shift = degrees * num_bins / 360.0
+    return abs(shift - round(shift)) > 1e-6
+
+
 def check_yaw_angles(degrees: list[float], num_bins: int) -> list[float]:
     """``degrees`` as floats when each is a non-zero multiple (mod 360) of the ``360 / num_bins`` rotation bins, else
     ValueError naming the others."""
-    bin_deg = 360 / num_bins
-    off = [a for a in degrees if abs(a / bin_deg - round(a / bin_deg)) > 1e-6 or a % 360 == 0]
+    off = [a for a in degrees if _off_bins(a, num_bins) or a % 360 == 0]
     if off:
         raise ValueError(
-            f"test-time yaws must be non-zero multiples of the {bin_deg:g}° rotation bins, got {off}"
+            f"test-time yaws must be non-zero multiples of the {360 / num_bins:g}° rotation bins, got {off}"
         )
     return [float(a) for a in degrees]
 
@@ -84,13 +89,12 @@ def roll_yaw_bins(rotation_probs: Tensor, degrees: float) -> Tensor:
     """The (B, 3, bins) Euler-bin distributions of a pass turned by ``degrees``, in the unturned frame: its yaw
     shifted back by ``degrees`` (a multiple of the bin width, else ValueError)."""
     bins = rotation_probs.shape[-1]
-    shift = degrees * bins / 360.0
-    if abs(shift - round(shift)) > 1e-6:
+    if _off_bins(degrees, bins):
         raise ValueError(
             f"a test-time yaw of {degrees}° is not a multiple of the {360 / bins:g}° rotation bins"
         )
     out = rotation_probs.clone()
-    out[:, YAW_AXIS] = torch.roll(rotation_probs[:, YAW_AXIS], shifts=-round(shift), dims=-1)
+    out[:, YAW_AXIS] = torch.roll(rotation_probs[:, YAW_AXIS], shifts=-round(degrees * bins / 360.0), dims=-1)
     return out
 
 

@@ -14,6 +14,7 @@ from lerobot.datasets.lerobot_dataset import LeRobotDataset
 from lerobot.policies.factory import make_policy, make_pre_post_processors
 
 from sigma_policy.configuration_sigma import SigmaConfig
+from sigma_policy.heatmap import heatmap_to_cube_point
 from sigma_policy.modeling_sigma import SigmaPolicy
 from sigma_policy.pointcloud import cube_to_world, world_to_cube
 from sigma_policy.rotation import quat_to_matrix
@@ -156,33 +157,40 @@ def test_yaw_ensemble_turns_the_cloud_and_the_hand_and_turns_each_prediction_bac
     """``tta_yaw_deg``: each extra pass renders the cloud turned about the box's centre line, with the gripper's
     pose the proprio token reads turned with it; with a radius that takes every pass in, the action's position is
     the mean of the passes' points turned back."""
-    _, policy, pre, _, _ = build(tiny_root, tta_yaw_deg=[-90, 45], tta_radius_m=10.0)
+    cfg, policy, pre, _, _ = build(tiny_root, tta_yaw_deg=[-90, 45], tta_radius_m=10.0)
     policy.eval()
     obs = pre(single_observation(tiny_root, 1))
-    passes, proprios = [], []
-    run_pass, proprio = policy._predict_pass, policy._proprio
+    rendered, proprios, points, turns = [], [], [], []
+    render, proprio, run_network = policy._render, policy._proprio, policy._run_network
 
-    def spy_pass(cloud, tasks, bounds, batch, transforms=None):
-        out = run_pass(cloud, tasks, bounds, batch, transforms)
-        passes.append((cloud.points, transforms, cube_to_world(out[2], bounds)))
-        return out
+    def spy_render(points, colors, bounds, hand=None):
+        rendered.append(points)
+        return render(points, colors, bounds, hand)
 
     def spy_proprio(batch, bounds, transforms, site=None):
+        turns.append(transforms)
         proprios.append(proprio(batch, bounds, transforms, site))
         return proprios[-1]
 
-    policy._predict_pass, policy._proprio = spy_pass, spy_proprio
+    def spy_network(views, tasks, batch, bounds, transforms=None, **kwargs):
+        out = run_network(views, tasks, batch, bounds, transforms=transforms, **kwargs)
+        cube = heatmap_to_cube_point(out.trans.float(), cfg.img_size, refine_px=cfg.heatmap_refine_px)
+        world = cube_to_world(cube, bounds)
+        points.append(world if transforms is None else transform_points(transforms, world, inverse=True))
+        return out
+
+    policy._render, policy._proprio, policy._run_network = spy_render, spy_proprio, spy_network
     pred = policy.predict(obs)
-    assert len(passes) == 3 and passes[0][1] is None
+    assert len(rendered) == 3 and turns[0] is None
     centre = (pred.bounds[:, :3] + pred.bounds[:, 3:]) / 2
-    for (points, T, _), degrees in zip(passes[1:], (-90, 45), strict=True):
-        torch.testing.assert_close(points, transform_points(T, pred.cloud_points), equal_nan=True)
+    for shown, T, degrees in zip(rendered[1:], turns[1:], (-90, 45), strict=True):
+        torch.testing.assert_close(shown, transform_points(T, pred.cloud_points), equal_nan=True)
         torch.testing.assert_close(transform_points(T, centre), centre)
         assert torch.rad2deg(torch.atan2(T[0, 1, 0], T[0, 0, 0])).item() == pytest.approx(degrees)
     # proprio = [gripper (3), grip site in the box (3), orientation columns (6)]: the turned passes' site moved
     assert not torch.allclose(proprios[1][:, 3:6], proprios[0][:, 3:6])
-    back = [passes[0][2]] + [transform_points(T, p, inverse=True) for _, T, p in passes[1:]]
-    torch.testing.assert_close(pred.action[:, :3], torch.stack(back).mean(0))
+    # every pass within the radius: the position is the mean of the passes' points, each turned back
+    torch.testing.assert_close(pred.action[:, :3], torch.stack(points).mean(0))
 
 
 def test_yaw_ensemble_whose_passes_all_disagree_acts_as_the_unturned_pass(tiny_root):
