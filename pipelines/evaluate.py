@@ -65,6 +65,9 @@ class EvalConfig:
     # The test-time yaw ensemble's extra angles (degrees; the policy's `tta_yaw_deg`, sigma_policy/test_time.py);
     # None: the checkpoint's own (off unless it was trained with them set).
     tta_yaw_deg: list[float] | None = None
+    # Whether a policy trained with the zoomed second stage (`zoom_box_m`, sigma_policy/zoom.py) runs it; None: the
+    # checkpoint's own (on). False scores the same weights on their first pass alone.
+    zoom_at_inference: bool | None = None
 
 
 @dataclass(frozen=True)
@@ -213,6 +216,8 @@ class _Worker:
         self.policy, self.pre, self.post = load_policy(cfg.checkpoint, cfg.device)
         if cfg.tta_yaw_deg is not None:  # checked in run_eval
             self.policy.config.tta_yaw_deg = [float(a) for a in cfg.tta_yaw_deg]
+        if cfg.zoom_at_inference is not None:
+            self.policy.config.zoom_at_inference = cfg.zoom_at_inference
         self.cameras = tuple(self.policy.config.camera_names())
         self.image_size = self._image_size()
         self.envs: dict[str, Any] = {}

@@ -123,6 +123,7 @@ from sigma_data.contract import (  # the data contract: the only sigma_data modu
 from sigma_policy.lamb import LambConfig
 from sigma_policy.network import VIEW_CHANNELS, NetworkConfig
 from sigma_policy.test_time import check_yaw_angles
+from sigma_policy.zoom import check_zoom
 
 PRESETS: dict[str, dict[str, Any]] = {
     "paper": {
@@ -317,6 +318,16 @@ class SigmaConfig(PreTrainedConfig):
     # averaged. [] = off (every preset); each angle adds one inference pass.
     tta_yaw_deg: list[float] = field(default_factory=list)
     tta_radius_m: float = 0.02
+    # Zoomed second stage (sigma_policy/zoom.py, after RVT-2's coarse-to-fine): at inference a second pass renders a
+    # cube of ``zoom_box_m`` metres centred on the first pass's point and its prediction is the action; in training
+    # ``zoom_share`` of the samples are rendered in such a cube centred within ``zoom_jitter_m`` metres (per axis) of
+    # the target. 0 = off (every preset); on, the proprio token also reads the box's side and centre.
+    # ``zoom_at_inference=False`` keeps a zoom-trained policy to its first pass (the same weights without the second
+    # look).
+    zoom_box_m: float = 0.0
+    zoom_share: float = 0.5
+    zoom_jitter_m: float = 0.05
+    zoom_at_inference: bool = True
     # Sub-voxel refinement of the translation at inference: centroid of the score profiles within this many
     # voxels of the argmax (sigma_policy/heatmap.py); 0 = the argmax voxel centre (RVT). None = from preset
     # (paper 0, small 2).
@@ -414,6 +425,12 @@ class SigmaConfig(PreTrainedConfig):
         self.tta_yaw_deg = check_yaw_angles(self.tta_yaw_deg, self.num_rotation_bins)
         if not self.tta_radius_m > 0.0:
             raise ValueError(f"policy.tta_radius_m must be > 0, got {self.tta_radius_m}")
+        check_zoom(self.zoom_box_m, self.zoom_share, self.zoom_jitter_m)
+        if self.zoom_box_m and not (self.use_proprio and self.proprio_position):
+            raise ValueError(
+                "policy.zoom_box_m needs use_proprio and proprio_position: the proprio token tells the network which "
+                "box it sees and where the hand is in it"
+            )
         self.network_config()  # validates the architecture numbers early
 
     # ------------------------------------------------------------------ LeRobot hooks
@@ -538,7 +555,12 @@ class SigmaConfig(PreTrainedConfig):
         """Architecture numbers for ``SigmaNetwork`` (language dimensions come from the text encoder)."""
         names = {f.name for f in fields(NetworkConfig)}
         values = {k: getattr(self, k) for k in names if hasattr(self, k) and getattr(self, k) is not None}
-        values["proprio_dim"] = 3 + 3 * bool(self.proprio_position) + 6 * bool(self.proprio_orientation)
+        values["proprio_dim"] = (
+            3
+            + 3 * bool(self.proprio_position)
+            + 6 * bool(self.proprio_orientation)
+            + 4 * (self.zoom_box_m > 0)
+        )
         values["head_pool_sigma"] = self.gt_heatmap_sigma
         values["in_channels"] = VIEW_CHANNELS + int(self.hand_marker)
         return NetworkConfig(**values)

@@ -59,6 +59,7 @@ from sigma_policy.test_time import (
     yaw_about_box_centre,
 )
 from sigma_policy.text_encoder import make_text_encoder
+from sigma_policy.zoom import box_code, cube_around, training_boxes
 
 
 def _cpu_has_bf16() -> bool:
@@ -250,6 +251,10 @@ class SigmaPolicy(PreTrainedPolicy):
             xyz_range=cfg.aug_translation_range,
             yaw_range_deg=cfg.aug_yaw_range_deg,
         )
+        if (
+            cfg.zoom_box_m
+        ):  # a share of the samples is seen as the second stage sees it (sigma_policy/zoom.py)
+            bounds, _ = training_boxes(bounds, pos, cfg.zoom_box_m, cfg.zoom_share, cfg.zoom_jitter_m)
         views = self._add_render_noise(self._render(points, cloud.colors, bounds, cloud.hand))
         site = None  # the grip site the marker and the proprio token get (read only where one of them is on)
         if cfg.hand_marker or (cfg.use_proprio and cfg.proprio_position):
@@ -350,6 +355,11 @@ class SigmaPolicy(PreTrainedPolicy):
         if cfg.tta_yaw_deg:
             turned = [self._predict_pass(cloud, tasks, bounds, batch, d)[2] for d in cfg.tta_yaw_deg]
             best = consensus([best, *turned], cfg.tta_radius_m)
+        if (
+            cfg.zoom_box_m and cfg.zoom_at_inference
+        ):  # the second stage, in a cube around the first one's point
+            bounds = cube_around(best.point, cfg.zoom_box_m, bounds)
+            views, out, best = self._predict_pass(cloud, tasks, bounds, batch)
         point_world = best.point
         rot_bins = best.rotation_probs.argmax(-1)
         quat = bins_to_quat(rot_bins, cfg.num_rotation_bins)
@@ -603,12 +613,18 @@ class SigmaPolicy(PreTrainedPolicy):
         return tokens, sentence
 
     def _proprio(
-        self, batch: dict[str, Any], bounds: Tensor, transforms: Tensor | None, site: Tensor | None = None
+        self,
+        batch: dict[str, Any],
+        bounds: Tensor,
+        transforms: Tensor | None,
+        site: Tensor | None = None,
+        task_bounds: Tensor | None = None,
     ) -> Tensor | None:
         """The proprio token's input: [gripper_open, finger_q1, finger_q2] (+ the grip site's position in the
         scene box with ``proprio_position``, + its orientation as the first two columns of its rotation matrix with
         ``proprio_orientation``; both moved by the same augmentation as the cloud). ``site`` (B, 3, world metres)
-        replaces the position read from ``batch`` (training with ``hand_site_noise_m``)."""
+        replaces the position read from ``batch`` (training with ``hand_site_noise_m``). With ``zoom_box_m``, the box's
+        side and centre in the sample's ``task_bounds`` (sigma_policy/zoom.py; ``bounds`` when not given)."""
         if not self.config.use_proprio:
             return None
         state = self._take(batch, OBS_STATE, 0, 1).float()
@@ -622,6 +638,8 @@ class SigmaPolicy(PreTrainedPolicy):
             if rotation is not None:
                 R = rotation @ R
             parts.append(R[:, :, :2].transpose(1, 2).flatten(1))  # columns x, y: continuous, sign-free
+        if self.config.zoom_box_m:  # which box the views show: the task box or a zoomed cube, and where
+            parts.append(box_code(bounds, task_bounds).to(state))
         return torch.cat(parts, dim=-1)
 
     def _run_network(
@@ -638,7 +656,8 @@ class SigmaPolicy(PreTrainedPolicy):
     ) -> NetworkOutput:
         """``site``: the grip site (B, 3, world) the proprio token gets, when not read from ``batch``."""
         tokens, sentence = self._language(tasks)
-        proprio = self._proprio(batch, bounds, transforms, site)
+        task_bounds = self._bounds(tasks) if self.config.zoom_box_m else None
+        proprio = self._proprio(batch, bounds, transforms, site, task_bounds=task_bounds)
         device = views.device
         autocast = nullcontext()
         if self.config.use_bf16_autocast and device.type == "cuda" and torch.cuda.is_bf16_supported():

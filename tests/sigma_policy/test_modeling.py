@@ -19,6 +19,7 @@ from sigma_policy.modeling_sigma import SigmaPolicy
 from sigma_policy.pointcloud import cube_to_world, world_to_cube
 from sigma_policy.rotation import quat_to_matrix
 from sigma_policy.test_time import transform_points
+from sigma_policy.zoom import box_code, box_side
 from tests.sigma_policy.tiny_dataset import BOUNDS, write_tiny_keyframe_dataset
 
 FAST = {"preset": "small", "img_size": 32, "patch_size": 8, "attn_dim": 64, "attn_heads": 2}
@@ -167,9 +168,9 @@ def test_yaw_ensemble_turns_the_cloud_and_the_hand_and_turns_each_prediction_bac
         rendered.append(points)
         return render(points, colors, bounds, hand)
 
-    def spy_proprio(batch, bounds, transforms, site=None):
+    def spy_proprio(batch, bounds, transforms, site=None, **kwargs):
         turns.append(transforms)
-        proprios.append(proprio(batch, bounds, transforms, site))
+        proprios.append(proprio(batch, bounds, transforms, site, **kwargs))
         return proprios[-1]
 
     def spy_network(views, tasks, batch, bounds, transforms=None, **kwargs):
@@ -412,10 +413,12 @@ def test_scene_box_comes_from_the_dataset_sidecar_when_unset(tmp_path):
     assert bare.scene_bounds == DEFAULT_SCENE_BOUNDS
 
 
-def test_augmented_target_lands_on_the_augmented_cube_inside_forward(tiny_root, monkeypatch):
+@pytest.mark.parametrize("zoom", [{}, {"zoom_box_m": 0.45, "zoom_share": 0.999, "zoom_jitter_m": 0.03}])
+def test_augmented_target_lands_on_the_augmented_cube_inside_forward(tiny_root, monkeypatch, zoom):
     """Augmentation, render and target composed as ``SigmaPolicy.forward`` composes them: under a random yaw and
     shift, the heatmap target of every start frame (the pre-grasp pose, straight above the cube centre) lies on
-    the red cube in the rendered top view. (Targets left unshifted while the cloud moves fail this test.)"""
+    the red cube in the rendered top view; with the zoom, in the zoomed cube's view. (Targets left unshifted while
+    the cloud moves, or projected in the task box while the views show the zoomed cube, fail this test.)"""
     import sigma_policy.modeling_sigma as modeling
 
     captured = {}
@@ -433,7 +436,12 @@ def test_augmented_target_lands_on_the_augmented_cube_inside_forward(tiny_root, 
     monkeypatch.setattr(SigmaPolicy, "_render", keep_views)
     monkeypatch.setattr(modeling, "gaussian_heatmaps", keep_uv)
     _, policy, pre, _, ds = build(
-        tiny_root, image_noise=0.0, aug_translation_range=0.1, aug_yaw_range_deg=45.0, use_contrastive=False
+        tiny_root,
+        image_noise=0.0,
+        aug_translation_range=0.1,
+        aug_yaw_range_deg=45.0,
+        use_contrastive=False,
+        **zoom,
     )
     idx = sample_indices(ds)
     torch.manual_seed(3)
@@ -787,9 +795,9 @@ def test_hand_site_noise_moves_the_marker_and_the_proprio_position_together_and_
         captured.setdefault("marked", site)
         return mark(self, views, site, bounds)
 
-    def keep_proprio(self, batch, bounds, transforms, site=None):
+    def keep_proprio(self, batch, bounds, transforms, site=None, **kwargs):
         captured["proprio"], captured["transforms"] = site, transforms
-        return proprio(self, batch, bounds, transforms, site)
+        return proprio(self, batch, bounds, transforms, site, **kwargs)
 
     monkeypatch.setattr(SigmaPolicy, "_mark_hand", keep_marked)
     monkeypatch.setattr(SigmaPolicy, "_proprio", keep_proprio)
@@ -817,3 +825,72 @@ def test_inference_reads_no_state_when_nothing_uses_it(tiny_root):
     marked.eval()
     with pytest.raises(KeyError, match=r"observation\.state"):
         marked.select_action(pre(dict(obs)))
+
+
+def test_zoom_second_stage_renders_a_cube_around_the_first_point_and_acts_from_it(tiny_root):
+    """``zoom_box_m``: a second pass renders a cube of that side centred on the first pass's point, its proprio token
+    reads the box's side, and the action and the returned views, heatmaps and box are the second pass's."""
+    cfg, policy, pre, _, _ = build(tiny_root, zoom_box_m=0.2)
+    assert cfg.zoom_box_m < BOUNDS[3] - BOUNDS[0]
+    policy.eval()
+    obs = pre(single_observation(tiny_root, 1))
+    boxes, proprios, points = [], [], []
+    proprio, run_network = policy._proprio, policy._run_network
+
+    def spy_proprio(batch, bounds, transforms, site=None, **kwargs):
+        proprios.append(proprio(batch, bounds, transforms, site, **kwargs))
+        return proprios[-1]
+
+    def spy_network(views, tasks, batch, bounds, **kwargs):
+        out = run_network(views, tasks, batch, bounds, **kwargs)
+        boxes.append(bounds)
+        cube = heatmap_to_cube_point(out.trans.float(), cfg.img_size, refine_px=cfg.heatmap_refine_px)
+        points.append(cube_to_world(cube, bounds))
+        return out
+
+    policy._proprio, policy._run_network = spy_proprio, spy_network
+    pred = policy.predict(obs)
+    assert len(boxes) == 2
+    torch.testing.assert_close(boxes[0], torch.tensor([BOUNDS]))
+    torch.testing.assert_close(boxes[1], torch.cat([points[0] - 0.1, points[0] + 0.1], -1))
+    torch.testing.assert_close(pred.bounds, boxes[1])
+    torch.testing.assert_close(pred.action[:, :3], points[1])
+    # the proprio token ends with the box's side and its centre in the task box (0 for the task box itself)
+    task = torch.tensor([BOUNDS])
+    torch.testing.assert_close(proprios[0][:, -4:], box_code(task, task))
+    torch.testing.assert_close(proprios[1][:, -4:], box_code(boxes[1], task))
+    assert proprios[1][0, -4].item() == pytest.approx(0.2)
+    assert pred.views.shape[-1] == cfg.img_size
+    # zoom_at_inference=False (sigma-eval --zoom_at_inference false): the same weights, the first pass alone
+    policy.config.zoom_at_inference = False
+    boxes.clear()
+    first = policy.predict(obs)
+    assert len(boxes) == 1
+    torch.testing.assert_close(first.action[:, :3], points[0])
+
+
+def test_zoom_trains_on_both_scales_and_saves_and_reloads(tiny_root, tmp_path):
+    """In training about ``zoom_share`` of the samples are rendered in the zoomed cube; the checkpoint, whose
+    proprio token is one wider, loads back with the zoom on."""
+    _, policy, pre, _, ds = build(tiny_root, zoom_box_m=0.25, zoom_share=0.5, use_contrastive=False)
+    seen = []
+    render = policy._render
+
+    def spy_render(points, colors, bounds, hand=None):
+        seen.append(bounds)
+        return render(points, colors, bounds, hand)
+
+    policy._render = spy_render
+    torch.manual_seed(0)
+    loss, _ = policy.forward(pre(training_batch(ds, list(range(8)))))
+    loss.backward()
+    sides = box_side(seen[0])[:, 0]
+    zoomed = (sides - 0.25).abs() < 1e-6
+    assert 0 < int(zoomed.sum()) < 8
+    torch.testing.assert_close(sides[~zoomed], torch.full_like(sides[~zoomed], BOUNDS[3] - BOUNDS[0]))
+    policy.save_pretrained(tmp_path)
+    again = SigmaPolicy.from_pretrained(tmp_path)
+    assert again.config.zoom_box_m == 0.25
+    torch.testing.assert_close(
+        again.network.proprio_preprocess.linear.weight, policy.network.proprio_preprocess.linear.weight
+    )
