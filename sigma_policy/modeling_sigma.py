@@ -251,9 +251,8 @@ class SigmaPolicy(PreTrainedPolicy):
             xyz_range=cfg.aug_translation_range,
             yaw_range_deg=cfg.aug_yaw_range_deg,
         )
-        if (
-            cfg.zoom_box_m
-        ):  # a share of the samples is seen as the second stage sees it (sigma_policy/zoom.py)
+        if cfg.zoom_box_m:
+            # a share of the samples is seen as the second stage sees it (sigma_policy/zoom.py)
             bounds, _ = training_boxes(bounds, pos, cfg.zoom_box_m, cfg.zoom_share, cfg.zoom_jitter_m)
         views = self._add_render_noise(self._render(points, cloud.colors, bounds, cloud.hand))
         site = None  # the grip site the marker and the proprio token get (read only where one of them is on)
@@ -355,9 +354,8 @@ class SigmaPolicy(PreTrainedPolicy):
         if cfg.tta_yaw_deg:
             turned = [self._predict_pass(cloud, tasks, bounds, batch, d)[2] for d in cfg.tta_yaw_deg]
             best = consensus([best, *turned], cfg.tta_radius_m)
-        if (
-            cfg.zoom_box_m and cfg.zoom_at_inference
-        ):  # the second stage, in a cube around the first one's point
+        if cfg.zoom_box_m and cfg.zoom_at_inference:
+            # the second stage, in a cube around the first one's point (sigma_policy/zoom.py)
             bounds = cube_around(best.point, cfg.zoom_box_m, bounds)
             views, out, best = self._predict_pass(cloud, tasks, bounds, batch)
         point_world = best.point
@@ -639,7 +637,7 @@ class SigmaPolicy(PreTrainedPolicy):
                 R = rotation @ R
             parts.append(R[:, :, :2].transpose(1, 2).flatten(1))  # columns x, y: continuous, sign-free
         if self.config.zoom_box_m:  # which box the views show: the task box or a zoomed cube, and where
-            parts.append(box_code(bounds, task_bounds).to(state))
+            parts.append(box_code(bounds, bounds if task_bounds is None else task_bounds).to(state))
         return torch.cat(parts, dim=-1)
 
     def _run_network(

@@ -860,6 +860,7 @@ def test_zoom_second_stage_renders_a_cube_around_the_first_point_and_acts_from_i
     torch.testing.assert_close(proprios[0][:, -4:], box_code(task, task))
     torch.testing.assert_close(proprios[1][:, -4:], box_code(boxes[1], task))
     assert proprios[1][0, -4].item() == pytest.approx(0.2)
+    torch.testing.assert_close(proprio(obs, task, None)[:, -4:], box_code(task, task))  # no task box: its own
     assert pred.views.shape[-1] == cfg.img_size
     # zoom_at_inference=False (sigma-eval --zoom_at_inference false): the same weights, the first pass alone
     policy.config.zoom_at_inference = False
