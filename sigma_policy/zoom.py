@@ -25,6 +25,8 @@ from __future__ import annotations
 import torch
 from torch import Tensor
 
+from sigma_policy.pointcloud import world_to_cube
+
 __all__ = ["box_code", "box_side", "check_zoom", "cube_around", "training_boxes"]
 
 
@@ -60,12 +62,11 @@ def box_side(bounds: Tensor) -> Tensor:
 
 def box_code(bounds: Tensor, task_bounds: Tensor) -> Tensor:
     """(B, 4) what the proprio token reads about the box a sample is rendered in: its side (metres) and its centre in
-    the task box's cube coordinates ([-1, 1]; 0 for the task box itself). Without the centre a zoomed view of a
+    the task box's cube coordinates (``pointcloud.world_to_cube``, as the grip site's; 0 for the task box itself). Without the centre a zoomed view of a
     target in free space (lift the cube, go to the bin's quadrant) shows nothing to find the target by, and the
     second stage falls back on the cube's centre: the first stage's error plus the training jitter."""
     centre = (bounds[:, :3] + bounds[:, 3:]) / 2
-    lo, hi = task_bounds[:, :3].to(centre), task_bounds[:, 3:].to(centre)
-    return torch.cat([box_side(bounds), (centre - lo) / (hi - lo) * 2 - 1], dim=-1)
+    return torch.cat([box_side(bounds), world_to_cube(centre, task_bounds.to(centre))], dim=-1)
 
 
 def training_boxes(
@@ -77,8 +78,8 @@ def training_boxes(
     generator: torch.Generator | None = None,
 ) -> tuple[Tensor, Tensor]:
     """Each sample's training box: with probability ``share`` a cube of ``side`` metres (at most its box's x extent)
-    centred on ``target`` (B, 3, after augmentation) moved by U(-jitter, jitter) per axis, else its ``bounds`` (B, 6). Returns ``(boxes (B, 6),
-    zoomed (B,) bool)``."""
+    centred on ``target`` (B, 3, after augmentation) moved by U(-jitter, jitter) per axis, else its ``bounds`` (B, 6).
+    Returns ``(boxes (B, 6), zoomed (B,) bool)``."""
     B = target.shape[0]
     dev, dtype = target.device, target.dtype
     gen_dev = generator.device if generator is not None else dev

@@ -829,7 +829,7 @@ def test_inference_reads_no_state_when_nothing_uses_it(tiny_root):
 
 def test_zoom_second_stage_renders_a_cube_around_the_first_point_and_acts_from_it(tiny_root):
     """``zoom_box_m``: a second pass renders a cube of that side centred on the first pass's point, its proprio token
-    reads the box's side, and the action and the returned views, heatmaps and box are the second pass's."""
+    reads the box's side and centre, and the action and the returned views, heatmaps and box are the second pass's."""
     cfg, policy, pre, _, _ = build(tiny_root, zoom_box_m=0.2)
     assert cfg.zoom_box_m < BOUNDS[3] - BOUNDS[0]
     policy.eval()
@@ -872,7 +872,7 @@ def test_zoom_second_stage_renders_a_cube_around_the_first_point_and_acts_from_i
 
 def test_zoom_trains_on_both_scales_and_saves_and_reloads(tiny_root, tmp_path):
     """In training about ``zoom_share`` of the samples are rendered in the zoomed cube; the checkpoint, whose
-    proprio token is one wider, loads back with the zoom on."""
+    proprio token is four wider, loads back with the zoom on."""
     _, policy, pre, _, ds = build(tiny_root, zoom_box_m=0.25, zoom_share=0.5, use_contrastive=False)
     seen = []
     render = policy._render

@@ -60,7 +60,6 @@ def test_zoom_is_off_by_default_and_needs_the_proprio_position():
 def test_box_code_is_the_side_and_the_centre_in_the_task_box():
     task = torch.tensor([[-0.4, -0.5, 0.75, 0.6, 0.5, 1.75]])
     torch.testing.assert_close(box_code(task, task), torch.tensor([[1.0, 0.0, 0.0, 0.0]]))
-    zoomed = cube_around(
-        torch.tensor([[0.35, 0.25, 1.0]]), 0.5
-    )  # a quarter of the way in x, y from the far face
+    # a 0.5 m cube a quarter of the way in from the task box's far x and y faces, a quarter up from its floor
+    zoomed = cube_around(torch.tensor([[0.35, 0.25, 1.0]]), 0.5)
     torch.testing.assert_close(box_code(zoomed, task), torch.tensor([[0.5, 0.5, 0.5, -0.5]]))
