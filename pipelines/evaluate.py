@@ -68,6 +68,11 @@ class EvalConfig:
     # Whether a policy trained with the zoomed second stage (`zoom_box_m`, sigma_policy/zoom.py) runs it; None: the
     # checkpoint's own (on). False scores the same weights on their first pass alone.
     zoom_at_inference: bool | None = None
+    # Instruction-contrastive decoding's weight (the policy's `instruction_contrast`, in [0, 1);
+    # sigma_policy/instruction_contrast.py); None: the checkpoint's own (0, off, unless it was trained with it set).
+    # It needs the policy's instruction -> task map, which checkpoints saved before 2026-11-29 lack: it is then read
+    # from --train_dataset.
+    instruction_contrast: float | None = None
 
 
 @dataclass(frozen=True)
@@ -218,6 +223,12 @@ class _Worker:
             self.policy.config.tta_yaw_deg = [float(a) for a in cfg.tta_yaw_deg]
         if cfg.zoom_at_inference is not None:
             self.policy.config.zoom_at_inference = cfg.zoom_at_inference
+        if cfg.instruction_contrast is not None:  # checked in run_eval
+            self.policy.config.instruction_contrast = cfg.instruction_contrast
+            if not self.policy.config.instruction_tasks and cfg.train_dataset is not None:
+                from sigma_data.contract import recorded_instruction_tasks
+
+                self.policy.config.instruction_tasks = recorded_instruction_tasks(cfg.train_dataset)
         self.cameras = tuple(self.policy.config.camera_names())
         self.image_size = self._image_size()
         self.envs: dict[str, Any] = {}
@@ -509,6 +520,23 @@ def _failures_text(failures: dict[str, int]) -> str:
     return ", ".join(f"{kind} {n}" for kind, n in sorted(failures.items(), key=lambda kv: -kv[1])) or "-"
 
 
+def _check_instruction_contrast(cfg: EvalConfig) -> None:
+    """ValueError unless the weight is in [0, 1) and the policy will know each instruction's task: from the
+    checkpoint's config or from ``--train_dataset``'s records."""
+    from sigma_data.contract import recorded_instruction_tasks
+    from sigma_policy.instruction_contrast import check_contrast_weight
+
+    check_contrast_weight(cfg.instruction_contrast)
+    config_file = Path(cfg.checkpoint) / "config.json"
+    if json.loads(config_file.read_text()).get("instruction_tasks"):
+        return
+    if cfg.train_dataset is None or not recorded_instruction_tasks(cfg.train_dataset):
+        raise ValueError(
+            f"--instruction_contrast: {config_file} has no instruction_tasks (saved before they were recorded) and "
+            f"--train_dataset {cfg.train_dataset} records none; pass the dataset the checkpoint was trained on"
+        )
+
+
 def run_eval(cfg: EvalConfig) -> dict:
     """Evaluate and write ``results.json`` / ``results.md`` under ``cfg.output_dir``; return the summary."""
     if cfg.checkpoint is None or not (Path(cfg.checkpoint) / "config.json").exists():
@@ -521,6 +549,8 @@ def run_eval(cfg: EvalConfig) -> dict:
 
         bins = json.loads((Path(cfg.checkpoint) / "config.json").read_text()).get("num_rotation_bins", 72)
         check_yaw_angles(cfg.tta_yaw_deg, bins)  # ValueError naming the angles
+    if cfg.instruction_contrast:
+        _check_instruction_contrast(cfg)
     jobs = plan_jobs(cfg)
     cfg.output_dir = Path(cfg.output_dir)
     cfg.output_dir.mkdir(parents=True, exist_ok=True)

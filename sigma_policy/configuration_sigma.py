@@ -120,6 +120,7 @@ from sigma_data.contract import (  # the data contract: the only sigma_data modu
     recorded_instruction_tasks,
     rgb_key,
 )
+from sigma_policy.instruction_contrast import check_contrast_weight
 from sigma_policy.lamb import LambConfig
 from sigma_policy.network import VIEW_CHANNELS, NetworkConfig
 from sigma_policy.test_time import check_yaw_angles
@@ -318,6 +319,12 @@ class SigmaConfig(PreTrainedConfig):
     # averaged. [] = off (every preset); each angle adds one inference pass.
     tta_yaw_deg: list[float] = field(default_factory=list)
     tta_radius_m: float = 0.02
+    # Instruction-contrastive decoding (inference only; sigma_policy/instruction_contrast.py): each view's heatmap
+    # under the instruction is divided by the ``instruction_contrast``-th power of the mean heatmap over every
+    # instruction of its task (``instruction_tasks``), so a place all of them point at loses to the place only this
+    # one points at; the heads are then run at the contrasted point. In [0, 1); 0 = off (every preset); each other
+    # instruction of the task adds one network run, and one more runs the heads.
+    instruction_contrast: float = 0.0
     # Zoomed second stage (sigma_policy/zoom.py, after RVT-2's coarse-to-fine): at inference a second pass renders a
     # cube of ``zoom_box_m`` metres centred on the first pass's point and its prediction is the action; in training
     # ``zoom_share`` of the samples are rendered in such a cube centred within ``zoom_jitter_m`` metres (per axis) of
@@ -352,8 +359,8 @@ class SigmaConfig(PreTrainedConfig):
     # instruction -> (xmin, ymin, zmin, xmax, ymax, zmax); filled from the training dataset's meta/sigma.json
     # (each episode's instruction and its task's recorded box) when ``per_task_bounds`` and left empty.
     instruction_bounds: dict[str, list[float]] = field(default_factory=dict)
-    # instruction -> task name; filled from the training dataset's meta/sigma.json with ``mask_same_task`` when empty.
-    # An instruction missing here is a task of its own.
+    # instruction -> task name; filled from the training dataset's meta/sigma.json when empty (``mask_same_task`` and
+    # ``instruction_contrast`` read it). An instruction missing here is a task of its own.
     instruction_tasks: dict[str, str] = field(default_factory=dict)
     text_encoder: str = "minilm"
     text_encoder_path: str | None = None
@@ -423,6 +430,7 @@ class SigmaConfig(PreTrainedConfig):
         if not self.hand_site_noise_m >= 0.0:
             raise ValueError(f"policy.hand_site_noise_m must be >= 0, got {self.hand_site_noise_m}")
         self.tta_yaw_deg = check_yaw_angles(self.tta_yaw_deg, self.num_rotation_bins)
+        self.instruction_contrast = check_contrast_weight(self.instruction_contrast)
         if not self.tta_radius_m > 0.0:
             raise ValueError(f"policy.tta_radius_m must be > 0, got {self.tta_radius_m}")
         check_zoom(self.zoom_box_m, self.zoom_share, self.zoom_jitter_m)
@@ -515,11 +523,11 @@ class SigmaConfig(PreTrainedConfig):
     def fill_from_dataset(self, dataset_root: str | Path | None = None) -> list[float]:
         """Fill the fields that come from the dataset when they are unset: ``scene_bounds`` (the union of the task
         boxes a sigma dataset records in ``meta/sigma.json``, ``"bounds": {task: box}``, else
-        :data:`DEFAULT_SCENE_BOUNDS`), with ``per_task_bounds`` ``instruction_bounds``, and with
-        ``mask_same_task`` ``instruction_tasks``. Returns ``scene_bounds``."""
+        :data:`DEFAULT_SCENE_BOUNDS`), with ``per_task_bounds`` ``instruction_bounds``, and ``instruction_tasks``.
+        Returns ``scene_bounds``."""
         if self.per_task_bounds and not self.instruction_bounds and dataset_root is not None:
             self.instruction_bounds = recorded_instruction_bounds(dataset_root)
-        if self.mask_same_task and not self.instruction_tasks and dataset_root is not None:
+        if not self.instruction_tasks and dataset_root is not None:
             self.instruction_tasks = recorded_instruction_tasks(dataset_root)
         if self.scene_bounds is None:
             boxes = recorded_bounds(dataset_root) if dataset_root is not None else []

@@ -40,7 +40,8 @@ from sigma_policy.augmentation import se3_augment
 from sigma_policy.configuration_sigma import SigmaConfig
 from sigma_policy.contrastive import contrastive_losses, instruction_ids
 from sigma_policy.heatmap import gaussian_heatmaps, heatmap_to_cube_point
-from sigma_policy.network import NetworkOutput, SigmaNetwork
+from sigma_policy.instruction_contrast import contrasted_logits, task_alternatives
+from sigma_policy.network import NetworkOutput, SigmaNetwork, predicted_uv
 from sigma_policy.pointcloud import (
     bounds_mask,
     cube_to_world,
@@ -393,6 +394,8 @@ class SigmaPolicy(PreTrainedPolicy):
         if cfg.hand_marker:
             views = self._mark_hand(views, self._site(batch, 0, T), bounds)
         out = self._run_network(views, tasks, batch, bounds, transforms=T)
+        if cfg.instruction_contrast:
+            out = self._contrast_instructions(views, tasks, batch, bounds, T, out)
         point_cube = heatmap_to_cube_point(
             out.trans.float(), cfg.img_size, refine_px=cfg.heatmap_refine_px, side_tilt_deg=cfg.side_tilt_deg
         )
@@ -408,6 +411,44 @@ class SigmaPolicy(PreTrainedPolicy):
             collision_probs=torch.softmax(out.collision_logits.float(), -1),
         )
         return views, out, prediction
+
+    def _contrast_instructions(
+        self,
+        views: Tensor,
+        tasks: list[str],
+        batch: dict[str, Any],
+        bounds: Tensor,
+        transforms: Tensor | None,
+        out: NetworkOutput,
+    ) -> NetworkOutput:
+        """``out`` with its translation logits contrasted against the task's other instructions
+        (sigma_policy/instruction_contrast.py) and its heads run again at the contrasted point, pooled there as
+        training pools them at the target; ``out`` unchanged when no sample's task has another instruction."""
+        cfg = self.config
+        alternatives = task_alternatives(tasks, cfg.instruction_tasks)
+        others, valid = [], []
+        for k in range(max(map(len, alternatives), default=0)):
+            # samples with fewer alternatives repeat their own instruction, masked out of the mean
+            asked = [alt[k] if k < len(alt) else own for alt, own in zip(alternatives, tasks, strict=True)]
+            others.append(self._run_network(views, asked, batch, bounds, transforms=transforms).trans)
+            valid.append(torch.tensor([k < len(alt) for alt in alternatives], device=views.device))
+        if not others:
+            return out
+        trans = contrasted_logits(
+            out.trans, torch.stack(others), torch.stack(valid), cfg.instruction_contrast
+        )
+        uv = predicted_uv(trans, cfg.side_tilt_deg)
+        pooled = self._run_network(
+            views,
+            tasks,
+            batch,
+            bounds,
+            transforms=transforms,
+            head_heatmap=gaussian_heatmaps(uv, cfg.img_size, sigma=cfg.gt_heatmap_sigma),
+            head_uv=uv,
+        )
+        pooled.trans = trans
+        return pooled
 
     @torch.no_grad()
     def input_cloud(self, batch: dict[str, Any]) -> tuple[Tensor, Tensor, Tensor]:

@@ -107,3 +107,16 @@ def test_test_time_yaws_off_the_rotation_bins_are_one_clear_error_before_any_epi
     assert main([f"--checkpoint={checkpoint}", "--tta_yaw_deg=[15,7]", f"--output_dir={out}"]) == 1
     assert "multiples of the 5° rotation bins, got [7.0]" in capsys.readouterr().err
     assert not out.exists()
+
+
+def test_instruction_contrast_without_the_instructions_tasks_is_one_clear_error_before_any_episode(
+    checkpoint, tmp_path, capsys
+):
+    """A checkpoint that does not record each instruction's task needs ``--train_dataset`` to read them from; a
+    weight outside [0, 1) is refused."""
+    out = tmp_path / "eval"
+    assert main([f"--checkpoint={checkpoint}", "--instruction_contrast=0.3", f"--output_dir={out}"]) == 1
+    assert "has no instruction_tasks" in capsys.readouterr().err
+    assert main([f"--checkpoint={checkpoint}", "--instruction_contrast=1.0", f"--output_dir={out}"]) == 1
+    assert "instruction_contrast must be in [0, 1)" in capsys.readouterr().err
+    assert not out.exists()

@@ -895,3 +895,42 @@ def test_zoom_trains_on_both_scales_and_saves_and_reloads(tiny_root, tmp_path):
     torch.testing.assert_close(
         again.network.proprio_preprocess.linear.weight, policy.network.proprio_preprocess.linear.weight
     )
+
+
+def test_instruction_contrast_asks_the_tasks_other_instructions_and_runs_the_heads_at_the_contrasted_point(
+    tiny_root,
+):
+    """``instruction_contrast``: the network runs once per instruction of the task, the action's point is the argmax of
+    the contrasted heatmaps (returned as the prediction's heatmaps), and a last run pools the heads there; an
+    instruction alone in its task runs once, as without the option."""
+    from sigma_policy.instruction_contrast import contrasted_logits
+    from sigma_policy.network import predicted_uv
+
+    cfg, policy, pre, _, _ = build(tiny_root, instruction_contrast=0.5, yaw_scan_px=8)
+    policy.eval()
+    obs = pre(single_observation(tiny_root, 1))
+    own = obs["task"][0] if isinstance(obs["task"], list) else obs["task"]
+    other = "an instruction of the same task"
+    policy.config.instruction_tasks = {own: "the task", other: "the task"}
+    calls = []
+    run_network = policy._run_network
+
+    def spy_network(views, tasks, batch, bounds, **kwargs):
+        out = run_network(views, tasks, batch, bounds, **kwargs)
+        calls.append((list(tasks), kwargs.get("head_uv"), out.trans.float()))
+        return out
+
+    policy._run_network = spy_network
+    pred = policy.predict(obs)
+    assert [c[0] for c in calls] == [[own], [other], [own]]
+    assert calls[0][1] is None and calls[1][1] is None
+    trans = contrasted_logits(calls[0][2], calls[1][2][None], torch.tensor([[True]]), 0.5)
+    torch.testing.assert_close(calls[2][1], predicted_uv(trans))
+    torch.testing.assert_close(pred.heatmaps, torch.softmax(trans.flatten(2), -1).reshape(trans.shape))
+    cube = heatmap_to_cube_point(trans, cfg.img_size, refine_px=cfg.heatmap_refine_px)
+    torch.testing.assert_close(pred.action[:, :3], cube_to_world(cube, pred.bounds))
+    # alone in its task: one run
+    policy.config.instruction_tasks = {own: "the task"}
+    calls.clear()
+    policy.predict(obs)
+    assert [c[0] for c in calls] == [[own]]

@@ -1,0 +1,71 @@
+"""Instruction-contrastive decoding of the translation heatmaps (sigma addition, inference only, off in every preset;
+``instruction_contrast`` in configuration_sigma.py).
+
+A multi-task policy's heatmap for "put the can in its bin" holds two things: the place the words pick, and places
+that are likely whatever the words say (PickPlace's tall cereal box and milk carton, which the side views show and
+the bread and the can below the bin's rim they do not; docs/learning.md, "the side views cannot see the bread or
+the can"). At inference the policy knows every instruction of the instructed task (``instruction_tasks``, recorded
+from the training dataset), so it can ask the same scene under each of them and discount what they share. Per view,
+before the views are lifted to one 3D point (sigma_policy/heatmap.py):
+
+    score(x) = log p(x | own) - w * log mean_j p(x | j)        j over every instruction of the task, own included
+
+With ``w = 1`` this is the pointwise mutual information of place and instruction (the uniform mixture over the
+task's instructions as the marginal), which turns every place that no instruction wants into a tie; ``0 <= w < 1``
+keeps ``(1 - w) log p`` of the policy's own belief, so where all instructions agree (lift, carry to the bin) the
+argmax is the policy's own, while a place that every instruction points at loses to the place only this one points
+at. It is classifier-free guidance's contrast (Ho & Salimans 2022, https://arxiv.org/abs/2207.12598) with the task's
+other instructions standing in for the unconditional model. An instruction alone in its task (Lift), or one the
+policy was not trained on, is left as it is.
+"""
+
+from __future__ import annotations
+
+import math
+
+import torch
+from torch import Tensor
+
+__all__ = ["check_contrast_weight", "contrasted_logits", "task_alternatives"]
+
+
+def check_contrast_weight(weight: float) -> float:
+    """``weight`` when in [0, 1) (0 = off), else ValueError: at 1 every place no instruction wants ties."""
+    if not 0.0 <= weight < 1.0:
+        raise ValueError(f"instruction_contrast must be in [0, 1) (0 = off), got {weight}")
+    return float(weight)
+
+
+def task_alternatives(instructions: list[str], instruction_tasks: dict[str, str]) -> list[list[str]]:
+    """For each instruction, the other instructions of its task in ``instruction_tasks`` (instruction -> task),
+    sorted; [] for an instruction that is alone in its task or not in the map."""
+    by_task: dict[str, list[str]] = {}
+    for instruction, task in sorted(instruction_tasks.items()):
+        by_task.setdefault(task, []).append(instruction)
+    return [
+        [other for other in by_task.get(instruction_tasks.get(s, ""), []) if other != s]
+        if s in instruction_tasks
+        else []
+        for s in instructions
+    ]
+
+
+def contrasted_logits(own: Tensor, others: Tensor, valid: Tensor, weight: float) -> Tensor:
+    """The contrasted per-view log-scores ``(B, V, H, W)`` of the module docstring.
+
+    Args:
+        own: (B, V, H, W) translation logits under each sample's own instruction.
+        others: (K, B, V, H, W) the logits under the task's other instructions (K = the most any sample has).
+        valid: (K, B) bool, which of ``others`` are a real instruction of the sample's task (the rest are padding).
+        weight: ``w`` in [0, 1).
+    """
+    if others.shape[1:] != own.shape or valid.shape != others.shape[:2]:
+        raise ValueError(
+            f"others {tuple(others.shape)} and valid {tuple(valid.shape)} do not match own {tuple(own.shape)}"
+        )
+    log_own = torch.log_softmax(own.float().flatten(2), dim=-1)  # (B, V, N)
+    log_others = torch.log_softmax(others.float().flatten(3), dim=-1)  # (K, B, V, N)
+    log_others = log_others.masked_fill(~valid[:, :, None, None], -math.inf)
+    count = 1 + valid.sum(0).to(log_own)  # (B,): own and the real others
+    log_mean = torch.logsumexp(torch.cat([log_own[None], log_others]), dim=0) - count.log()[:, None, None]
+    return (log_own - weight * log_mean).reshape(own.shape)
