@@ -2,9 +2,9 @@
 ``instruction_contrast`` in configuration_sigma.py).
 
 A multi-task policy's heatmap for "put the can in its bin" holds two things: the place the words pick, and places
-that are likely whatever the words say (PickPlace's tall cereal box and milk carton, which the side views show and
-the bread and the can below the bin's rim they do not; docs/learning.md, "the side views cannot see the bread or
-the can"). At inference the policy knows every instruction of the instructed task (``instruction_tasks``, recorded
+that are likely whatever the words say: PickPlace's tall cereal box and milk carton, which the side views show,
+where the bread and the can stay hidden below the bin's rim (docs/learning.md, "the side views cannot see the bread
+or the can"). At inference the policy knows every instruction of the instructed task (``instruction_tasks``, recorded
 from the training dataset), so it can ask the same scene under each of them and discount what they share. Per view,
 before the views are lifted to one 3D point (sigma_policy/heatmap.py):
 
