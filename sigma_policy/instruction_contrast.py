@@ -43,9 +43,7 @@ def task_alternatives(instructions: list[str], instruction_tasks: dict[str, str]
     for instruction, task in sorted(instruction_tasks.items()):
         by_task.setdefault(task, []).append(instruction)
     return [
-        [other for other in by_task.get(instruction_tasks.get(s, ""), []) if other != s]
-        if s in instruction_tasks
-        else []
+        [other for other in by_task[instruction_tasks[s]] if other != s] if s in instruction_tasks else []
         for s in instructions
     ]
 

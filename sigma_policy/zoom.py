@@ -62,9 +62,10 @@ def box_side(bounds: Tensor) -> Tensor:
 
 def box_code(bounds: Tensor, task_bounds: Tensor) -> Tensor:
     """(B, 4) what the proprio token reads about the box a sample is rendered in: its side (metres) and its centre in
-    the task box's cube coordinates (``pointcloud.world_to_cube``, as the grip site's; 0 for the task box itself). Without the centre a zoomed view of a
-    target in free space (lift the cube, go to the bin's quadrant) shows nothing to find the target by, and the
-    second stage falls back on the cube's centre: the first stage's error plus the training jitter."""
+    the task box's cube coordinates (``pointcloud.world_to_cube``, as the grip site's; 0 for the task box itself).
+    Without the centre a zoomed view of a target in free space (lift the cube, go to the bin's quadrant) shows nothing
+    to find the target by, and the second stage falls back on the cube's centre: the first stage's error plus the
+    training jitter."""
     centre = (bounds[:, :3] + bounds[:, 3:]) / 2
     return torch.cat([box_side(bounds), world_to_cube(centre, task_bounds.to(centre))], dim=-1)
 
