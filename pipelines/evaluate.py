@@ -103,8 +103,10 @@ class EpisodeResult:
 
 # Panda fingers: each joint travels 0..0.04 m; a closed gripper whose gap is below this holds nothing.
 EMPTY_GRIP_GAP_M = 0.01
-# Two consecutive keyframes this close, with the same gripper command, make no progress: the policy is stuck.
+# Two consecutive keyframes this close, turned this little, with the same gripper command, make no progress: the
+# policy is stuck. Door's first two keyframes turn the hand in place, so the place alone is not a repeat.
 REPEAT_TOLERANCE_M = 0.01
+REPEAT_TOLERANCE_DEG = 5.0
 
 
 def failure_reason(result: EpisodeResult, max_keyframes: int) -> str | None:
@@ -118,7 +120,8 @@ def failure_reason(result: EpisodeResult, max_keyframes: int) -> str | None:
     task's objects have ``points``, followed by how the object sat between the open fingers, :func:`grasp_fit`:
     wider than the 78 mm gap means the hand's yaw was wrong, far off centre its position);
     ``dropped at keyframe k`` (something was held, then the gripper opened away from success); ``repeats keyframe
-    k`` (the next keyframe is the same pose and gripper command: stuck); ``keyframe k not reached
+    k`` (the next keyframe is the same position, within 1 cm, the same orientation, within 5°, and the same gripper
+    command: stuck; Door's in-place turns of the hand are not repeats); ``keyframe k not reached
     (stalled|budget)`` (the executor could not get the arm there); ``timeout after N keyframes`` (every move
     converged but the task never succeeded).
     """
@@ -141,7 +144,8 @@ def failure_reason(result: EpisodeResult, max_keyframes: int) -> str | None:
             return f"dropped at keyframe {k}"
     for prev, step in zip(result.trace, result.trace[1:], strict=False):
         same_place = math.dist(prev["action"][:3], step["action"][:3]) < REPEAT_TOLERANCE_M
-        if same_place and prev["action"][7] == step["action"][7]:
+        same_turn = _turn_deg(prev["action"][3:7], step["action"][3:7]) < REPEAT_TOLERANCE_DEG
+        if same_place and same_turn and prev["action"][7] == step["action"][7]:
             return f"repeats keyframe {prev['keyframe']}"
     for step in result.trace:
         if step["arm_status"] != "converged":
@@ -149,6 +153,12 @@ def failure_reason(result: EpisodeResult, max_keyframes: int) -> str | None:
     return f"timeout after {len(result.trace)} keyframes" + (
         "" if len(result.trace) >= max_keyframes else " (stopped)"
     )
+
+
+def _turn_deg(q1: list[float], q2: list[float]) -> float:
+    """Angle (degrees) of the rotation between two unit quaternions of the same convention (either sign)."""
+    dot = min(1.0, abs(sum(a * b for a, b in zip(q1, q2, strict=True))))
+    return math.degrees(2.0 * math.acos(dot))
 
 
 def _fit_text(trace: list[dict], i: int) -> str:

@@ -7,10 +7,12 @@ import pytest
 from pipelines.evaluate import EpisodeResult, _failure_kind, failure_reason, markdown_table, summarise
 
 
-def _step(k, xyz, grip=1.0, status="converged", closed=False, opened=False, gap=0.08):
+def _step(
+    k, xyz, grip=1.0, status="converged", closed=False, opened=False, gap=0.08, quat=(1.0, 0.0, 0.0, 0.0)
+):
     return {
         "keyframe": k,
-        "action": [*xyz, 1.0, 0.0, 0.0, 0.0, grip, 0.0],
+        "action": [*xyz, *quat, grip, 0.0],
         "arm_status": status,
         "closed_now": closed,
         "opened_now": opened,
@@ -54,6 +56,20 @@ PREGRASP, GRASP, LIFT = (0.0, 0.0, 0.9), (0.0, 0.0, 0.82), (0.0, 0.0, 0.97)
         (
             [_step(1, GRASP, 0.0, closed=True, gap=0.04), _step(2, GRASP, 0.0), _step(3, GRASP, 0.0)],
             "repeats keyframe 1",
+        ),
+        # turned in place (Door's first keyframes turn the hand before the approach): progress, not a repeat
+        (
+            [_step(1, PREGRASP), _step(2, PREGRASP, quat=(0.7071, 0.0, 0.0, 0.7071)), _step(3, GRASP)],
+            "timeout after 3 keyframes (stopped)",
+        ),
+        # the same orientation written with the other sign is the same orientation: a repeat
+        (
+            [
+                _step(1, GRASP, 0.0, closed=True, gap=0.04),
+                _step(2, LIFT, 0.0),
+                _step(3, LIFT, 0.0, quat=(-1, 0, 0, 0)),
+            ],
+            "repeats keyframe 2",
         ),
         (
             [_step(1, PREGRASP), _step(2, (0.5, 0.5, 0.5), status="stalled")],
