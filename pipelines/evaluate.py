@@ -123,7 +123,8 @@ def failure_reason(result: EpisodeResult, max_keyframes: int) -> str | None:
     k`` (the next keyframe is the same position, within 1 cm, the same orientation, within 5°, and the same gripper
     command: stuck; Door's in-place turns of the hand are not repeats); ``keyframe k not reached
     (stalled|budget)`` (the executor could not get the arm there); ``timeout after N keyframes`` (every move
-    converged but the task never succeeded).
+    converged but the task never succeeded). The last two end with where the task's joints were at the end, for a
+    task that has them (``TaskSpec.progress``: Door's hinge and lever).
     """
     if result.success:
         return None
@@ -149,10 +150,23 @@ def failure_reason(result: EpisodeResult, max_keyframes: int) -> str | None:
             return f"repeats keyframe {prev['keyframe']}"
     for step in result.trace:
         if step["arm_status"] != "converged":
-            return f"keyframe {step['keyframe']} not reached ({step['arm_status']})"
-    return f"timeout after {len(result.trace)} keyframes" + (
-        "" if len(result.trace) >= max_keyframes else " (stopped)"
+            return f"keyframe {step['keyframe']} not reached ({step['arm_status']})" + _progress_text(
+                result.trace
+            )
+    return (
+        f"timeout after {len(result.trace)} keyframes"
+        + ("" if len(result.trace) >= max_keyframes else " (stopped)")
+        + _progress_text(result.trace)
     )
+
+
+def _progress_text(trace: list[dict]) -> str:
+    """Where the task's joints ended (``TaskSpec.progress``, e.g. Door's ``hinge_rad`` and ``lever_rad``), as
+    ``"; at the end hinge_rad 0.05, lever_rad 0.8"``; empty for a task without them."""
+    progress = trace[-1].get("progress") if trace else None
+    if not progress:
+        return ""
+    return "; at the end " + ", ".join(f"{name} {value}" for name, value in progress.items())
 
 
 def _turn_deg(q1: list[float], q2: list[float]) -> float:
@@ -310,6 +324,7 @@ class _Worker:
                     }
                     | near
                     | grasp_fit(env, near.get("nearest", job.variation))
+                    | ({"progress": env.task.progress(env.env)} if env.task.progress else {})
                 )
                 was_open = now_open
                 if terminated:

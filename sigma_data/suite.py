@@ -154,6 +154,7 @@ TASKS: dict[str, TaskSpec] = {
             bounds=door.BOUNDS,
             expert=door_expert,
             success=door.success,
+            progress=door.progress,
             max_steps=600,
         ),
     )

@@ -16,6 +16,16 @@ def hinge_angle(env: Any) -> float:
     return float(env.sim.data.qpos[env.hinge_qpos_addr])
 
 
+def lever_angle(env: Any) -> float:
+    """Lever (latch) joint angle (rad): the latch clears the frame only beyond ~1.25 (``sigma_data/experts/door.py``)."""
+    return float(env.sim.data.qpos[env.handle_qpos_addr])
+
+
+def progress(env: Any) -> dict[str, float]:
+    """How far the door is: ``{"hinge_rad": ..., "lever_rad": ...}`` (absolute lever angle), to 0.01 rad."""
+    return {"hinge_rad": round(hinge_angle(env), 2), "lever_rad": round(abs(lever_angle(env)), 2)}
+
+
 def success(env: Any, variation: Variation) -> bool:
     """robosuite's check: the hinge is open by more than 0.3 rad."""
     return hinge_angle(env) > OPEN_ANGLE

@@ -21,6 +21,7 @@ Bounds = tuple[float, float, float, float, float, float]
 SuccessFn = Callable[[Any, "Variation"], bool]
 TargetFn = Callable[[Any, "Variation"], np.ndarray]
 PointsFn = Callable[[Any, "Variation"], np.ndarray]
+ProgressFn = Callable[[Any], dict[str, float]]
 
 
 @dataclass(frozen=True)
@@ -57,6 +58,9 @@ class TaskSpec:
     object a policy went for with it (``pipelines/evaluate.py``); None for a task with one object. ``points`` gives
     the world vertices (N, 3) of the variation's object, from which evaluation measures how wide the object is
     across the open fingers and how far off their centre it is at each keyframe; None where not defined.
+    ``progress`` gives the task's joint readings that success is judged by, rounded, by name (Door's hinge and lever
+    angles): evaluation records them at each keyframe, so a failure says how far the task got; None where the
+    objects' poses say it.
     """
 
     name: str
@@ -69,6 +73,7 @@ class TaskSpec:
     max_steps: int
     target: TargetFn | None = None
     points: PointsFn | None = None
+    progress: ProgressFn | None = None
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "env_kwargs", MappingProxyType(dict(self.env_kwargs)))

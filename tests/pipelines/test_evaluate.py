@@ -82,6 +82,22 @@ def test_failure_reasons(trace, reason):
     assert failure_reason(_result(trace), max_keyframes=12) == reason
 
 
+def test_a_task_with_progress_says_where_its_joints_ended():
+    """Door: the last keyframe's hinge and lever angles follow a stall or a timeout."""
+    door = {"hinge_rad": 0.05, "lever_rad": 0.8}
+    trace = [_step(1, PREGRASP), _step(2, GRASP, status="stalled") | {"progress": door}]
+    assert (
+        failure_reason(_result(trace), 12)
+        == "keyframe 2 not reached (stalled); at the end hinge_rad 0.05, lever_rad 0.8"
+    )
+    trace = [_step(k, (0.0, 0.0, 0.8 + 0.05 * k)) | {"progress": door} for k in range(1, 13)]
+    assert (
+        failure_reason(_result(trace), 12)
+        == "timeout after 12 keyframes; at the end hinge_rad 0.05, lever_rad 0.8"
+    )
+    assert _failure_kind(failure_reason(_result(trace), 12)) == "timeout"
+
+
 def test_a_missed_grasp_says_how_the_object_sat_between_the_fingers():
     """From the grasp pose before the close (fingers open), else from the close itself."""
     fit = {"across_fingers_mm": 92, "off_centre_mm": 4, "below_top_mm": 36}

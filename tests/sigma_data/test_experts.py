@@ -312,8 +312,15 @@ def test_previously_failing_seed_succeeds_and_replays(task_name, variation_name,
 def test_door_keyframes_follow_the_lever_and_door_arcs():
     """Door: both reorientations in place, then the arcs are cut into several keyframes (a replay follows
     chords of the lever and hinge arcs); the gripper stays closed from the grasp on."""
-    recorder, ok = run_expert("door", "open_door", seed=0)
+    task = get_task("door")
+    env = make_env(task)
+    try:
+        recorder, ok = run_expert("door", "open_door", seed=0, env=env)
+        progress = task.progress(env)  # what evaluation records: the latch released, the door open
+    finally:
+        env.close()
     assert ok
+    assert progress["lever_rad"] > 1.0 and progress["hinge_rad"] > 0.3, progress
     labels = np.array(recorder.labels)
     kf = np.array(recorder.keyframes)
     assert labels[:3].tolist() == [[True, False]] * 3, "wrist turn, orient, approach: open, free space"

@@ -133,3 +133,20 @@ def test_scene_bounds_is_the_union_of_the_task_boxes():
     assert scene_bounds(["pick_place:bread"]) == get_task("pick_place").bounds
     with pytest.raises(ValueError, match="unknown task"):
         scene_bounds(["lift", "juggle"])
+
+
+def test_door_progress_reads_the_hinge_and_the_lever():
+    """Evaluation records Door's joints at every keyframe (``TaskSpec.progress``): closed at reset, and what
+    moving the joints moves; tasks whose objects' poses say how far they got have none."""
+    task = get_task("door")
+    assert get_task("lift").progress is None
+    env = make_env(task)
+    try:
+        reset_env(env, task, task.variations[0], seed=0)
+        assert task.progress(env) == {"hinge_rad": 0.0, "lever_rad": 0.0}
+        env.sim.data.qpos[env.hinge_qpos_addr] = 0.31
+        env.sim.data.qpos[env.handle_qpos_addr] = -1.3
+        assert task.progress(env) == {"hinge_rad": 0.31, "lever_rad": 1.3}
+        assert task.success(env, task.variations[0])
+    finally:
+        env.close()
