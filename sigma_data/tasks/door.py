@@ -22,8 +22,9 @@ def lever_angle(env: Any) -> float:
 
 
 def progress(env: Any) -> dict[str, float]:
-    """How far the door is: ``{"hinge_rad": ..., "lever_rad": ...}`` (absolute lever angle), to 0.01 rad."""
-    return {"hinge_rad": round(hinge_angle(env), 2), "lever_rad": round(abs(lever_angle(env)), 2)}
+    """How far the door is: ``{"hinge_rad": ..., "lever_rad": ...}`` (absolute lever angle), to 0.01 rad (a shut
+    door reads 0.0, not -0.0)."""
+    return {"hinge_rad": round(hinge_angle(env), 2) + 0.0, "lever_rad": round(abs(lever_angle(env)), 2)}
 
 
 def success(env: Any, variation: Variation) -> bool:

@@ -144,6 +144,8 @@ def test_door_progress_reads_the_hinge_and_the_lever():
     try:
         reset_env(env, task, task.variations[0], seed=0)
         assert task.progress(env) == {"hinge_rad": 0.0, "lever_rad": 0.0}
+        env.sim.data.qpos[env.hinge_qpos_addr] = -0.001  # pushed shut: no minus sign in a failure's text
+        assert str(task.progress(env)["hinge_rad"]) == "0.0"
         env.sim.data.qpos[env.hinge_qpos_addr] = 0.31
         env.sim.data.qpos[env.handle_qpos_addr] = -1.3
         assert task.progress(env) == {"hinge_rad": 0.31, "lever_rad": 1.3}
