@@ -104,9 +104,10 @@ class EpisodeResult:
 # Panda fingers: each joint travels 0..0.04 m; a closed gripper whose gap is below this holds nothing.
 EMPTY_GRIP_GAP_M = 0.01
 # Two consecutive keyframes this close, turned this little, with the same gripper command, make no progress: the
-# policy is stuck. Door's first two keyframes turn the hand in place, so the place alone is not a repeat.
+# policy is stuck. Door's first two keyframes turn the hand in place, so the place alone is not a repeat. The policy
+# turns in 5° bins: the bound lies between one bin and two, so a one-bin jitter is a repeat whatever the rounding.
 REPEAT_TOLERANCE_M = 0.01
-REPEAT_TOLERANCE_DEG = 5.0
+REPEAT_TOLERANCE_DEG = 7.5
 
 
 def failure_reason(result: EpisodeResult, max_keyframes: int) -> str | None:
@@ -120,12 +121,16 @@ def failure_reason(result: EpisodeResult, max_keyframes: int) -> str | None:
     task's objects have ``points``, followed by how the object sat between the open fingers, :func:`grasp_fit`:
     wider than the 78 mm gap means the hand's yaw was wrong, far off centre its position);
     ``dropped at keyframe k`` (something was held, then the gripper opened away from success); ``repeats keyframe
-    k`` (the next keyframe is the same position, within 1 cm, the same orientation, within 5°, and the same gripper
+    k`` (the next keyframe is the same position, within 1 cm, the same orientation, within 7.5°, and the same gripper
     command: stuck; Door's in-place turns of the hand are not repeats); ``keyframe k not reached
     (stalled|budget)`` (the executor could not get the arm there); ``timeout after N keyframes`` (every move
     converged but the task never succeeded). The last two end with where the task's joints were at the end, for a
     task that has them (``TaskSpec.progress``: Door's hinge and lever).
     """
+    import numpy as np
+
+    from pipelines.diagnostics import geodesic_deg
+
     if result.success:
         return None
     if result.error is not None:
@@ -145,7 +150,9 @@ def failure_reason(result: EpisodeResult, max_keyframes: int) -> str | None:
             return f"dropped at keyframe {k}"
     for prev, step in zip(result.trace, result.trace[1:], strict=False):
         same_place = math.dist(prev["action"][:3], step["action"][:3]) < REPEAT_TOLERANCE_M
-        same_turn = _turn_deg(prev["action"][3:7], step["action"][3:7]) < REPEAT_TOLERANCE_DEG
+        same_turn = (
+            geodesic_deg(np.array(prev["action"][3:7]), np.array(step["action"][3:7])) < REPEAT_TOLERANCE_DEG
+        )
         if same_place and same_turn and prev["action"][7] == step["action"][7]:
             return f"repeats keyframe {prev['keyframe']}"
     for step in result.trace:
@@ -167,12 +174,6 @@ def _progress_text(trace: list[dict]) -> str:
     if not progress:
         return ""
     return "; at the end " + ", ".join(f"{name} {value}" for name, value in progress.items())
-
-
-def _turn_deg(q1: list[float], q2: list[float]) -> float:
-    """Angle (degrees) of the rotation between two unit quaternions of the same convention (either sign)."""
-    dot = min(1.0, abs(sum(a * b for a, b in zip(q1, q2, strict=True))))
-    return math.degrees(2.0 * math.acos(dot))
 
 
 def _fit_text(trace: list[dict], i: int) -> str:

@@ -62,6 +62,15 @@ PREGRASP, GRASP, LIFT = (0.0, 0.0, 0.9), (0.0, 0.0, 0.82), (0.0, 0.0, 0.97)
             [_step(1, PREGRASP), _step(2, PREGRASP, quat=(0.7071, 0.0, 0.0, 0.7071)), _step(3, GRASP)],
             "timeout after 3 keyframes (stopped)",
         ),
+        # one 5° bin of turn at the same place is a jitter, not progress: a repeat (0.9990, 0.0436 is 5.0° about x)
+        (
+            [
+                _step(1, GRASP, 0.0, closed=True, gap=0.04),
+                _step(2, LIFT, 0.0),
+                _step(3, LIFT, 0.0, quat=(0.999, 0.0436, 0.0, 0.0)),
+            ],
+            "repeats keyframe 2",
+        ),
         # the same orientation written with the other sign is the same orientation: a repeat
         (
             [
