@@ -504,7 +504,7 @@ def summarise(results: list[EpisodeResult], cfg: EvalConfig) -> dict:
                 "mean_keyframes": sum(r.keyframes for r in rs) / n,
                 "seeds": sorted(r.seed for r in rs),
                 "errors": sum(r.error is not None for r in rs),
-                "failures": dict(Counter(_failure_kind(r.failure) for r in rs if r.failure)),
+                "failures": dict(Counter(failure_kind(r.failure) for r in rs if r.failure)),
             }
         )
     mean = sum(r["success_rate"] for r in rows) / len(rows) if rows else 0.0
@@ -520,7 +520,7 @@ def summarise(results: list[EpisodeResult], cfg: EvalConfig) -> dict:
 FAILURE_KINDS = ("error", "wrong object", "grasp missed", "dropped", "repeats", "not reached", "timeout")
 
 
-def _failure_kind(reason: str) -> str:
+def failure_kind(reason: str) -> str:
     """``grasp missed at keyframe 3`` -> ``grasp missed``: the kind of a :func:`failure_reason`."""
     return next((kind for kind in FAILURE_KINDS if kind in reason), reason)
 

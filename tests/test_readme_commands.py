@@ -25,6 +25,7 @@ PROGRAMS = ("sigma-data", "sigma-eval", "sigma-viz", "sigma-demo", "sigma-ablate
 PROGRAMS += (
     "sigma-diagnose",
     "sigma-compare",
+    "sigma-diff",
     "lerobot-train",
     "lerobot-eval",
     "python -m benchmarks.",
@@ -148,6 +149,7 @@ PARSERS: dict[str, Callable[[list[str]], None]] = {
     "sigma-results": _pipeline("pipelines.results", "ResultsConfig"),
     "sigma-diagnose": _pipeline("pipelines.diagnostics", "DiagnoseConfig"),
     "sigma-compare": _pipeline("pipelines.compare", "CompareConfig"),
+    "sigma-diff": _pipeline("pipelines.paired", "DiffConfig"),
     "sigma-viz": _sigma_viz,
     "lerobot-train": _lerobot("lerobot.configs.train.TrainPipelineConfig"),
     "lerobot-eval": _lerobot("lerobot.configs.eval.EvalPipelineConfig"),

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import pytest
 
-from pipelines.evaluate import EpisodeResult, _failure_kind, failure_reason, markdown_table, summarise
+from pipelines.evaluate import EpisodeResult, failure_kind, failure_reason, markdown_table, summarise
 
 
 def _step(
@@ -104,7 +104,7 @@ def test_a_task_with_progress_says_where_its_joints_ended():
         failure_reason(_result(trace), 12)
         == "timeout after 12 keyframes; at the end hinge_rad 0.05, lever_rad 0.8"
     )
-    assert _failure_kind(failure_reason(_result(trace), 12)) == "timeout"
+    assert failure_kind(failure_reason(_result(trace), 12)) == "timeout"
 
 
 def test_a_missed_grasp_says_how_the_object_sat_between_the_fingers():
@@ -116,7 +116,7 @@ def test_a_missed_grasp_says_how_the_object_sat_between_the_fingers():
         reason
         == "grasp missed at keyframe 3 (92 mm across the fingers, 4 mm off centre, 36 mm below its top)"
     )
-    assert _failure_kind(reason) == "grasp missed"
+    assert failure_kind(reason) == "grasp missed"
     trace = [_step(1, PREGRASP), _step(2, GRASP, 0.0, closed=True, gap=0.002) | fit | {"off_centre_mm": 30}]
     assert failure_reason(_result(trace), 12).endswith(
         "(92 mm across the fingers, 30 mm off centre, 36 mm below its top)"
@@ -131,7 +131,7 @@ def test_doing_the_other_instruction_is_named_before_the_trace():
     result = _result([_step(1, GRASP, 0.0, closed=True, gap=0.04), _step(2, LIFT, 1.0, opened=True)])
     result.other_variation = "green_on_red"
     assert failure_reason(result, 12) == "wrong object: did green_on_red"
-    assert _failure_kind(failure_reason(result, 12)) == "wrong object"
+    assert failure_kind(failure_reason(result, 12)) == "wrong object"
 
 
 def test_closing_at_another_variations_object_is_a_wrong_object_failure():
@@ -145,7 +145,7 @@ def test_closing_at_another_variations_object_is_a_wrong_object_failure():
 
     milk = EpisodeResult("pick_place", "milk", 7, False, 3, 100, 1.0, trace=trace("can"))
     assert failure_reason(milk, 12) == "wrong object at keyframe 2: went for can"
-    assert _failure_kind(failure_reason(milk, 12)) == "wrong object"
+    assert failure_kind(failure_reason(milk, 12)) == "wrong object"
     milk.trace = trace("milk")  # over the milk: the trace decides as before
     assert failure_reason(milk, 12) == "dropped at keyframe 3"
 
@@ -155,8 +155,8 @@ def test_success_and_errors():
     assert (
         failure_reason(_result([], error="RuntimeError('boom')\nmore"), 12) == "error: RuntimeError('boom')"
     )
-    assert _failure_kind("grasp missed at keyframe 3") == "grasp missed"
-    assert _failure_kind("keyframe 2 not reached (budget)") == "not reached"
+    assert failure_kind("grasp missed at keyframe 3") == "grasp missed"
+    assert failure_kind("keyframe 2 not reached (budget)") == "not reached"
 
 
 def test_summary_counts_failure_kinds(tmp_path):
