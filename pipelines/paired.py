@@ -161,17 +161,20 @@ def compare(baseline: dict[EpisodeKey, dict], candidate: dict[EpisodeKey, dict])
         raise ValueError(
             "the two evaluations share no episode (task, variation and seed); evaluate both on the same seeds"
         )
+
+    def pairs_of(keys: list[EpisodeKey]) -> Pairs:
+        return pair_counts([baseline[k]["success"] for k in keys], [candidate[k]["success"] for k in keys])
+
     groups: dict[tuple[str, str], list[EpisodeKey]] = defaultdict(list)
     for key in shared:
         groups[key[:2]].append(key)
-    rows = []
-    for (task, variation), keys in sorted(groups.items()):
-        pairs = pair_counts([baseline[k]["success"] for k in keys], [candidate[k]["success"] for k in keys])
-        rows.append({"task": task, "variation": variation, **_row(pairs)})
-    overall = pair_counts([baseline[k]["success"] for k in shared], [candidate[k]["success"] for k in shared])
+    rows = [
+        {"task": task, "variation": variation, **_row(pairs_of(keys))}
+        for (task, variation), keys in sorted(groups.items())
+    ]
     return {
         "variations": rows,
-        "all": _row(overall),
+        "all": _row(pairs_of(shared)),
         "failures": {
             "baseline": _failures([baseline[k] for k in shared]),
             "candidate": _failures([candidate[k] for k in shared]),
