@@ -13,7 +13,8 @@ episodes it won and lost, not by two independent rates whose intervals overlap. 
   https://doi.org/10.1002/(SICI)1097-0258(19981130)17:22%3C2635::AID-SIM954%3E3.0.CO;2-C);
 * each run's failures by kind (``sigma-eval``'s reasons, :data:`pipelines.evaluate.FAILURE_KINDS`).
 
-An episode that ended in an error counts as a failure, as in ``sigma-eval``'s own table.
+An episode that ended in an error counts as a failure, as in ``sigma-eval``'s own table; a failure that a results.json
+written before ``sigma-eval`` recorded reasons holds without one is counted as "no reason recorded".
 
 Example::
 
@@ -133,8 +134,18 @@ def load_outcomes(path: Path) -> tuple[Path, dict[EpisodeKey, dict]]:
     return file, out
 
 
+# The kind of a failed episode whose results.json holds no reason (written before sigma-eval recorded one).
+UNRECORDED = "no reason recorded"
+
+
+def _failure_kind(episode: dict) -> str:
+    if episode.get("failure"):
+        return failure_kind(episode["failure"])
+    return "error" if episode.get("error") else UNRECORDED
+
+
 def _failures(episodes: list[dict]) -> dict[str, int]:
-    kinds = Counter(failure_kind(e.get("failure") or "error") for e in episodes if not e["success"])
+    kinds = Counter(_failure_kind(e) for e in episodes if not e["success"])
     order = [*FAILURE_KINDS, *sorted(set(kinds) - set(FAILURE_KINDS))]
     return {kind: kinds[kind] for kind in order if kinds[kind]}
 

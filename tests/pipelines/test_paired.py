@@ -124,6 +124,17 @@ def test_compare_and_cli_on_sigma_eval_results(tmp_path, capsys):
     assert json.loads(out_json.read_text())["all"]["won"] == 2
 
 
+def test_failures_without_a_recorded_reason(tmp_path):
+    """An error is an error; a failure from a results.json older than sigma-eval's reasons is not called one."""
+    base = _results_file(tmp_path / "base", {("lift", "lift_cube", 0): "x", ("lift", "lift_cube", 1): "x"})
+    data = json.loads((base / "results.json").read_text())
+    data["episodes"][0].update(failure=None, error="RuntimeError('sim')")
+    data["episodes"][1].update(failure=None)
+    (base / "results.json").write_text(json.dumps(data))
+    result = compare(load_outcomes(base)[1], load_outcomes(base)[1])
+    assert result["failures"]["baseline"] == {"error": 1, "no reason recorded": 1}
+
+
 def test_bad_input_is_one_clear_error(tmp_path, capsys):
     assert main(["--baseline", str(tmp_path / "nowhere")]) == 1
     assert "--candidate are both required" in capsys.readouterr().err
