@@ -13,12 +13,16 @@ episodes it won and lost, not by two independent rates whose intervals overlap. 
   https://doi.org/10.1002/(SICI)1097-0258(19981130)17:22%3C2635::AID-SIM954%3E3.0.CO;2-C);
 * each run's failures by kind (``sigma-eval``'s reasons, :data:`pipelines.evaluate.FAILURE_KINDS`).
 
+Each side may be several evaluations of one policy on disjoint seeds (``--baseline '[A,B]'``): their episodes are
+pooled, so 20 episodes per variation and 20 more scored later compare as 40.
+
 An episode that ended in an error counts as a failure, as in ``sigma-eval``'s own table; a failure that a results.json
 written before ``sigma-eval`` recorded reasons holds without one is counted as "no reason recorded".
 
 Example::
 
     sigma-diff --baseline outputs/bench_suite/runs/seed0/eval --candidate outputs/bench_suite/runs/seed0/eval_tta15
+    sigma-diff --baseline '[runs/a/eval,runs/a/eval_seeds100020]' --candidate '[runs/b/eval,runs/b/eval_seeds100020]'
 """
 
 from __future__ import annotations
@@ -27,7 +31,7 @@ import json
 import math
 import sys
 from collections import Counter, defaultdict
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import draccus
@@ -41,10 +45,11 @@ EpisodeKey = tuple[str, str, int]  # task, variation, seed
 class DiffConfig:
     """Options of ``sigma-diff``."""
 
-    # The reference evaluation: a sigma-eval results.json, or the directory that holds it.
-    baseline: Path | None = None
-    # The evaluation compared with it, on the same seeds.
-    candidate: Path | None = None
+    # The reference evaluation: a sigma-eval results.json, or the directory that holds it; or a list '[A,B]' of
+    # evaluations of one policy on disjoint seeds, pooled.
+    baseline: list[Path] = field(default_factory=list)
+    # The evaluation compared with it, on the same seeds (one, or a list as for the baseline).
+    candidate: list[Path] = field(default_factory=list)
     # Also write the comparison as JSON here (optional).
     output_json: Path | None = None
 
@@ -138,6 +143,43 @@ def load_outcomes(path: Path) -> tuple[Path, dict[EpisodeKey, dict]]:
 UNRECORDED = "no reason recorded"
 
 
+def load_pooled(paths: list[Path]) -> tuple[list[Path], dict[EpisodeKey, dict]]:
+    """:func:`load_outcomes` of each evaluation, pooled; ValueError naming both files when an episode (task,
+    variation, seed) is in two of them."""
+    files: list[Path] = []
+    pooled: dict[EpisodeKey, dict] = {}
+    origin: dict[EpisodeKey, Path] = {}
+    for path in paths:
+        file, outcomes = load_outcomes(path)
+        for key, episode in outcomes.items():
+            if key in pooled:
+                raise ValueError(
+                    f"episode {key} is in both {origin[key]} and {file}; pool disjoint seeds only"
+                )
+            pooled[key], origin[key] = episode, file
+        files.append(file)
+    return files, pooled
+
+
+def parse_args(argv: list[str]) -> DiffConfig:
+    """``sigma-diff``'s arguments; ``--baseline A`` is read as ``--baseline [A]``, so one evaluation needs no
+    brackets (draccus reads a list only in brackets)."""
+    return draccus.parse(DiffConfig, args=_single_runs_as_lists(argv))
+
+
+def _single_runs_as_lists(argv: list[str]) -> list[str]:
+    out, wrap = [], False
+    for arg in argv:
+        name, eq, value = arg.partition("=")
+        if wrap and not arg.startswith(("[", "--")):
+            arg = f"[{arg}]"
+        elif name in ("--baseline", "--candidate") and eq and not value.startswith("["):
+            arg = f"{name}=[{value}]"
+        wrap = arg in ("--baseline", "--candidate")
+        out.append(arg)
+    return out
+
+
 def _failure_kind(episode: dict) -> str:
     if episode.get("failure"):
         return failure_kind(episode["failure"])
@@ -220,19 +262,19 @@ def markdown(result: dict) -> str:
 
 
 def main(argv: list[str] | None = None) -> int:
-    cfg = draccus.parse(DiffConfig, args=sys.argv[1:] if argv is None else argv)
+    cfg = parse_args(sys.argv[1:] if argv is None else argv)
     try:
-        if cfg.baseline is None or cfg.candidate is None:
+        if not cfg.baseline or not cfg.candidate:
             raise ValueError(
                 "--baseline and --candidate are both required (sigma-eval outputs or results.json)"
             )
-        base_file, base = load_outcomes(cfg.baseline)
-        cand_file, cand = load_outcomes(cfg.candidate)
+        base_files, base = load_pooled(cfg.baseline)
+        cand_files, cand = load_pooled(cfg.candidate)
         result = compare(base, cand)
     except ValueError as e:
         print(f"sigma-diff: {e}", file=sys.stderr)
         return 1
-    result["baseline"], result["candidate"] = str(base_file), str(cand_file)
+    result["baseline"], result["candidate"] = [str(f) for f in base_files], [str(f) for f in cand_files]
     print(markdown(result))
     if cfg.output_json is not None:
         cfg.output_json.parent.mkdir(parents=True, exist_ok=True)

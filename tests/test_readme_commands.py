@@ -149,7 +149,7 @@ PARSERS: dict[str, Callable[[list[str]], None]] = {
     "sigma-results": _pipeline("pipelines.results", "ResultsConfig"),
     "sigma-diagnose": _pipeline("pipelines.diagnostics", "DiagnoseConfig"),
     "sigma-compare": _pipeline("pipelines.compare", "CompareConfig"),
-    "sigma-diff": _pipeline("pipelines.paired", "DiffConfig"),
+    "sigma-diff": lambda args: importlib.import_module("pipelines.paired").parse_args(args),
     "sigma-viz": _sigma_viz,
     "lerobot-train": _lerobot("lerobot.configs.train.TrainPipelineConfig"),
     "lerobot-eval": _lerobot("lerobot.configs.eval.EvalPipelineConfig"),

@@ -12,6 +12,7 @@ from pipelines.paired import (
     Pairs,
     compare,
     load_outcomes,
+    load_pooled,
     main,
     mcnemar_exact_p,
     pair_counts,
@@ -133,6 +134,26 @@ def test_failures_without_a_recorded_reason(tmp_path):
     (base / "results.json").write_text(json.dumps(data))
     result = compare(load_outcomes(base)[1], load_outcomes(base)[1])
     assert result["failures"]["baseline"] == {"error": 1, "no reason recorded": 1}
+
+
+def test_evaluations_on_disjoint_seeds_are_pooled(tmp_path, capsys):
+    first = _results_file(tmp_path / "a1", {("lift", "lift_cube", 0): None, ("lift", "lift_cube", 1): "x"})
+    more = _results_file(tmp_path / "a2", {("lift", "lift_cube", 2): "x"})
+    cand = _results_file(
+        tmp_path / "b", {("lift", "lift_cube", s): None for s in range(3)} | {("lift", "lift_cube", 9): None}
+    )
+    files, pooled = load_pooled([first, more / "results.json"])
+    assert [f.parent.name for f in files] == ["a1", "a2"] and len(pooled) == 3
+    out = tmp_path / "diff.json"
+    assert main([f"--baseline=[{first},{more}]", "--candidate", str(cand), "--output_json", str(out)]) == 0
+    result = json.loads(out.read_text())
+    assert (result["all"]["episodes"], result["all"]["won"], result["only_candidate"]) == (3, 2, 1)
+    assert result["candidate"] == [str(cand / "results.json")]
+    capsys.readouterr()
+    with pytest.raises(ValueError, match="is in both"):
+        load_pooled([first, first])
+    assert main(["--baseline", f"[{first},{first}]", "--candidate", str(cand)]) == 1
+    assert "pool disjoint seeds only" in capsys.readouterr().err
 
 
 def test_bad_input_is_one_clear_error(tmp_path, capsys):
