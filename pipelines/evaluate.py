@@ -11,6 +11,9 @@ given, are checked against the seeds recorded in its ``meta/sigma.json`` (overla
 reported with its episode count, its seeds and a Wilson 95% interval. Episodes run in ``workers`` processes,
 each with its own policy copy and environments.
 
+Why a failed episode failed (wrong object, grasp missed, dropped, ...) is read from its keyframe trace by
+``pipelines/failures.py``; every episode's reason is in ``results.json`` and counted by kind in the table.
+
 Example::
 
     sigma-eval --checkpoint outputs/train/checkpoints/last/pretrained_model \\
@@ -35,6 +38,13 @@ import draccus
 from tqdm import tqdm
 
 from pipelines.checkpoints import CheckpointError, check_checkpoint, load_policy
+from pipelines.failures import (
+    failure_kind,
+    failure_reason,
+    grasp_fit,
+    nearest_variation,
+    other_variation_done,
+)
 
 logger = logging.getLogger(__name__)
 
@@ -99,103 +109,6 @@ class EpisodeResult:
     trace: list[dict] = field(default_factory=list)
     # A failed episode that ended in another variation's success state (e.g. the other stacking order).
     other_variation: str | None = None
-
-
-# Panda fingers: each joint travels 0..0.04 m; a closed gripper whose gap is below this holds nothing.
-EMPTY_GRIP_GAP_M = 0.01
-# Two consecutive keyframes this close, turned this little, with the same gripper command, make no progress: the
-# policy is stuck. Door's first two keyframes turn the hand in place, so the place alone is not a repeat. The policy
-# turns in 5° bins: the bound lies between one bin and two, so a one-bin jitter is a repeat whatever the rounding.
-REPEAT_TOLERANCE_M = 0.01
-REPEAT_TOLERANCE_DEG = 7.5
-
-
-def failure_reason(result: EpisodeResult, max_keyframes: int) -> str | None:
-    """A short, task-independent reason for a failed episode, from its keyframe trace.
-
-    In order of precedence: ``error: ...`` (an exception); ``wrong object: did <variation>`` (the scene ended in
-    another variation's success state: the policy did the other instruction); ``wrong object at keyframe k: went
-    for <variation>`` (the gripper first closed nearer another variation's object than the instructed one, see
-    :func:`nearest_variation`: the policy did not ground the instruction); ``grasp missed at keyframe k`` (the
-    gripper closed on nothing: finger gap below 1 cm once the close has finished, :func:`_settled_gap`; where the
-    task's objects have ``points``, followed by how the object sat between the open fingers, :func:`grasp_fit`:
-    wider than the 78 mm gap means the hand's yaw was wrong, far off centre its position);
-    ``dropped at keyframe k`` (something was held, then the gripper opened away from success); ``repeats keyframe
-    k`` (the next keyframe is the same position, within 1 cm, the same orientation, within 7.5°, and the same gripper
-    command: stuck; Door's in-place turns of the hand are not repeats); ``keyframe k not reached
-    (stalled|budget)`` (the executor could not get the arm there); ``timeout after N keyframes`` (every move
-    converged but the task never succeeded). The last two end with where the task's joints were at the end, for a
-    task that has them (``TaskSpec.progress``: Door's hinge and lever).
-    """
-    import numpy as np
-
-    from pipelines.diagnostics import geodesic_deg
-
-    if result.success:
-        return None
-    if result.error is not None:
-        return f"error: {result.error.splitlines()[0][:120]}"
-    if result.other_variation is not None:
-        return f"wrong object: did {result.other_variation}"
-    held = False
-    for i, step in enumerate(result.trace):
-        k = step["keyframe"]
-        nearest = step.get("nearest")
-        if step["closed_now"] and not held and nearest is not None and nearest != result.variation:
-            return f"wrong object at keyframe {k}: went for {nearest}"
-        if step["closed_now"] and _settled_gap(result.trace, i) < EMPTY_GRIP_GAP_M:
-            return f"grasp missed at keyframe {k}" + _fit_text(result.trace, i)
-        held = held or step["closed_now"]
-        if held and step["opened_now"]:
-            return f"dropped at keyframe {k}"
-    for prev, step in zip(result.trace, result.trace[1:], strict=False):
-        same_place = math.dist(prev["action"][:3], step["action"][:3]) < REPEAT_TOLERANCE_M
-        same_turn = (
-            geodesic_deg(np.array(prev["action"][3:7]), np.array(step["action"][3:7])) < REPEAT_TOLERANCE_DEG
-        )
-        if same_place and same_turn and prev["action"][7] == step["action"][7]:
-            return f"repeats keyframe {prev['keyframe']}"
-    for step in result.trace:
-        if step["arm_status"] != "converged":
-            return f"keyframe {step['keyframe']} not reached ({step['arm_status']})" + _progress_text(
-                result.trace
-            )
-    return (
-        f"timeout after {len(result.trace)} keyframes"
-        + ("" if len(result.trace) >= max_keyframes else " (stopped)")
-        + _progress_text(result.trace)
-    )
-
-
-def _progress_text(trace: list[dict]) -> str:
-    """Where the task's joints ended (``TaskSpec.progress``, e.g. Door's ``hinge_rad`` and ``lever_rad``), as
-    ``"; at the end hinge_rad 0.05, lever_rad 0.8"``; empty for a task without them."""
-    progress = trace[-1].get("progress") if trace else None
-    if not progress:
-        return ""
-    return "; at the end " + ", ".join(f"{name} {value}" for name, value in progress.items())
-
-
-def _fit_text(trace: list[dict], i: int) -> str:
-    """How the object sat between the fingers for the close at ``trace[i]`` (:func:`grasp_fit`), from the keyframe
-    before it where the hand was already down (the grasp pose, fingers open), else from the close itself."""
-    fit = next((trace[j] for j in (i - 1, i) if j >= 0 and "across_fingers_mm" in trace[j]), None)
-    if fit is None:
-        return ""
-    ridge = f", closing {fit['ridge_deg']}° off its ridge" if "ridge_deg" in fit else ""
-    return (
-        f" ({fit['across_fingers_mm']} mm across the fingers, {fit['off_centre_mm']} mm off centre,"
-        f" {fit['below_top_mm']} mm below its top{ridge})"
-    )
-
-
-def _settled_gap(trace: list[dict], i: int) -> float:
-    """The finger gap once the close at ``trace[i]`` has finished: a close whose arm stalled (blocked on the object)
-    can end before the fingers meet, so the next keyframe's gap counts too unless it opens the gripper."""
-    gap = trace[i]["finger_gap_m"]
-    if i + 1 < len(trace) and not trace[i + 1]["opened_now"]:
-        gap = min(gap, trace[i + 1]["finger_gap_m"])
-    return gap
 
 
 def wilson_interval(successes: int, n: int, z: float = 1.96) -> tuple[float, float]:
@@ -376,79 +289,6 @@ class _Worker:
             log_policy_frame(rec, **prediction_frame(self.policy, pred, instruction), step=step)
 
 
-def nearest_variation(env) -> dict[str, str]:
-    """``{"nearest": <variation>}``: the variation of ``env``'s task whose object (``TaskSpec.target``) is nearest
-    the grip site in the horizontal plane, e.g. which PickPlace object the hand is over; ``{}`` for a task with
-    one object."""
-    import numpy as np
-
-    from sigma_data.control import grip_site_frame
-
-    task = env.task
-    if task.target is None or len(task.variations) < 2:
-        return {}
-    site = grip_site_frame(env.env)[0][:2]
-    dist = {v.name: float(np.linalg.norm(task.target(env.env, v)[:2] - site)) for v in task.variations}
-    return {"nearest": min(dist, key=dist.get)}
-
-
-# The finger pads reach this far below the grip site (m): an object's vertices above it are what they close on
-# (the vertices above, not a band at the pads' height: a can's or a box's mesh has vertices only at its corners).
-PAD_BELOW_SITE_M = 0.01
-
-
-def grasp_fit(env, variation: str) -> dict[str, int]:
-    """How the object of ``variation`` sits between the fingers now, from its vertices (``TaskSpec.points``) above
-    the pads' lower edge; ``{}`` for a task without ``points`` or a hand not down at the object:
-
-    * ``across_fingers_mm``: its width along the closing axis (wider than the open gap, 78 mm for the Panda, it
-      cannot be grasped at this yaw);
-    * ``off_centre_mm``: how far its middle is from the fingers' midpoint along that axis;
-    * ``below_top_mm``: how far the grip site is below the object's top (the expert grasps 36 mm below it, the
-      palm's clearance, or 20 mm above the bottom of a short object; near 0 or negative: the hand is on top of it);
-    * ``ridge_deg``, only for an object whose top is elongated (the milk carton's gable ridge; the long axis of the
-      cereal box's top): the angle between the closing axis and it, 0-90 (the expert closes along the carton's
-      ridge, within 12°, onto the vertical gable ends).
-
-    At the expert's grasp (seed 0) PickPlace's objects are 31-50 mm across the fingers; turned 45° from it the
-    cereal box is 93 mm (it no longer fits), the bread 62 mm and the milk carton 56 mm (they still do), the can 50.
-    """
-    import numpy as np
-
-    from sigma_data.control import grip_site_frame
-    from sigma_data.suite import get_variation
-    from sigma_data.tasks.geometry import ridge_direction
-
-    task = env.task
-    if task.points is None:
-        return {}
-    site, rot = grip_site_frame(env.env)
-    pts = task.points(env.env, get_variation(task, variation))
-    band = pts[pts[:, 2] > site[2] - PAD_BELOW_SITE_M]
-    if len(band) == 0:
-        return {}
-    closing = rot[:2, 0] / np.linalg.norm(rot[:2, 0])  # the site's x axis points from one finger to the other
-    proj = band[:, :2] @ closing
-    middle = 0.5 * (proj.max() + proj.min())
-    fit = {
-        "across_fingers_mm": round(1000 * float(proj.max() - proj.min())),
-        "off_centre_mm": round(1000 * abs(float(middle - site[:2] @ closing))),
-        "below_top_mm": round(1000 * float(pts[:, 2].max() - site[2])),
-    }
-    ridge = ridge_direction(pts)
-    if ridge is not None:
-        fit["ridge_deg"] = round(float(np.degrees(np.arccos(min(1.0, abs(float(closing @ ridge)))))))
-    return fit
-
-
-def other_variation_done(env) -> str | None:
-    """The name of another variation of ``env``'s task whose success check passes now, if any."""
-    for variation in env.task.variations:
-        if variation.name != env.variation.name and env.task.success(env.env, variation):
-            return variation.name
-    return None
-
-
 def _batched(value):
     import numpy as np
 
@@ -515,14 +355,6 @@ def summarise(results: list[EpisodeResult], cfg: EvalConfig) -> dict:
         "mean_success": mean,
         "episodes": [asdict(r) for r in results],
     }
-
-
-FAILURE_KINDS = ("error", "wrong object", "grasp missed", "dropped", "repeats", "not reached", "timeout")
-
-
-def failure_kind(reason: str) -> str:
-    """``grasp missed at keyframe 3`` -> ``grasp missed``: the kind of a :func:`failure_reason`."""
-    return next((kind for kind in FAILURE_KINDS if kind in reason), reason)
 
 
 def markdown_table(summary: dict) -> str:

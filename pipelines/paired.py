@@ -11,7 +11,7 @@ episodes it won and lost, not by two independent rates whose intervals overlap. 
 * the difference of the success rates with its 95% interval for paired proportions, Newcombe's method 10
   (Wilson intervals of each rate combined with the pairs' correlation; Newcombe, Statistics in Medicine 1998,
   https://doi.org/10.1002/(SICI)1097-0258(19981130)17:22%3C2635::AID-SIM954%3E3.0.CO;2-C);
-* each run's failures by kind (``sigma-eval``'s reasons, :data:`pipelines.evaluate.FAILURE_KINDS`).
+* each run's failures by kind (``sigma-eval``'s reasons, :data:`pipelines.failures.FAILURE_KINDS`).
 
 Each side may be several evaluations of one policy on disjoint seeds (``--baseline '[A,B]'``): their episodes are
 pooled, so 20 episodes per variation and 20 more scored later compare as 40.
@@ -36,7 +36,8 @@ from pathlib import Path
 
 import draccus
 
-from pipelines.evaluate import FAILURE_KINDS, failure_kind, wilson_interval
+from pipelines.evaluate import wilson_interval
+from pipelines.failures import FAILURE_KINDS, failure_kind
 
 EpisodeKey = tuple[str, str, int]  # task, variation, seed
 

@@ -55,7 +55,7 @@ class TaskSpec:
     so voxel grids and orthographic virtual views stay isotropic); robosuite's table top is at z = 0.8.
     ``max_steps`` is the control-step budget of one expert episode (20 steps = 1 s). ``target`` gives, for a
     scene with several objects, where the variation's object is grasped (world xyz, metres): evaluation names the
-    object a policy went for with it (``pipelines/evaluate.py``); None for a task with one object. ``points`` gives
+    object a policy went for with it (``pipelines/failures.py``); None for a task with one object. ``points`` gives
     the world vertices (N, 3) of the variation's object, from which evaluation measures how wide the object is
     across the open fingers and how far off their centre it is at each keyframe; None where not defined.
     ``progress`` gives the task's joint readings that success is judged by, rounded, by name (Door's hinge and lever

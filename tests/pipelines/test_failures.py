@@ -1,10 +1,12 @@
-"""sigma-eval's per-episode failure reasons, from keyframe traces (the rollouts themselves run in test_demo)."""
+"""sigma-eval's per-episode failure reasons (pipelines/failures.py), from keyframe traces and real robosuite scenes
+(the rollouts themselves run in test_demo)."""
 
 from __future__ import annotations
 
 import pytest
 
-from pipelines.evaluate import EpisodeResult, failure_kind, failure_reason, markdown_table, summarise
+from pipelines.evaluate import EpisodeResult, markdown_table, summarise
+from pipelines.failures import failure_kind, failure_reason
 
 
 def _step(
@@ -180,7 +182,7 @@ def test_the_other_stacking_order_is_recognised_in_real_robosuite():
     its success check fails and sigma-eval names the variation it did instead."""
     import numpy as np
 
-    from pipelines.evaluate import other_variation_done
+    from pipelines.failures import other_variation_done
     from sigma_data.control import EnvDriver
     from sigma_data.sim_env import SigmaRobosuiteEnv
     from sigma_data.suite import get_task, get_variation
@@ -205,7 +207,7 @@ def test_the_object_the_hand_went_for_is_named_in_real_robosuite(scene, done_by)
     ``nearest`` says so (``TaskSpec.target`` of PickPlace objects and NutAssembly handles)."""
     import numpy as np
 
-    from pipelines.evaluate import nearest_variation
+    from pipelines.failures import nearest_variation
     from sigma_data.control import EnvDriver
     from sigma_data.sim_env import SigmaRobosuiteEnv
     from sigma_data.suite import get_task, get_variation
@@ -233,7 +235,7 @@ def test_how_the_object_sits_between_the_fingers_in_real_robosuite():
     fingers as planned and centred between them; 10 cm above it the pads are not at the object, so nothing."""
     import numpy as np
 
-    from pipelines.evaluate import grasp_fit
+    from pipelines.failures import grasp_fit
     from sigma_data.control import grip_site_frame, site_yaw, top_down_quat
     from sigma_data.experts.pick_place import grasp_band, plan_grasp
     from sigma_data.sim_env import SigmaRobosuiteEnv
@@ -262,7 +264,7 @@ def test_the_milk_cartons_ridge_against_the_closing_axis_in_real_robosuite():
     turn they close across it."""
     import numpy as np
 
-    from pipelines.evaluate import grasp_fit
+    from pipelines.failures import grasp_fit
     from sigma_data.control import grip_site_frame, site_yaw, top_down_quat
     from sigma_data.experts.pick_place import grasp_band, plan_grasp
     from sigma_data.sim_env import SigmaRobosuiteEnv
