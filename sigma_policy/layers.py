@@ -23,7 +23,7 @@ def _init_for_activation(module: nn.Conv2d | nn.Linear, activation: bool) -> Non
 class ConvBlock(nn.Sequential):
     """Conv2d (replicate padding, ``dilation * (k // 2)``) + optional GroupNorm(4) + optional LeakyReLU(0.02).
 
-    ``pre_padded``: the input already carries its replicate border (see :class:`sigma_policy.network.BilinearUpsample`), so the conv
+    ``pre_padded``: the input already carries its replicate border (see :class:`sigma_policy.upsample.BilinearUpsample`), so the conv
     pads nothing. A 1x1 conv pads nothing either (replicate padding by 0 would still copy the input).
     """
 

@@ -37,11 +37,12 @@ from dataclasses import dataclass
 from typing import Literal
 
 import torch
-import torch.nn.functional as F
 from torch import Tensor, nn
 
 from sigma_policy.heatmap import gaussian_heatmaps, heatmap_to_cube_point
 from sigma_policy.layers import LRELU_SLOPE, ConvBlock, DenseBlock
+from sigma_policy.transformer import TransformerLayer
+from sigma_policy.upsample import BilinearUpsample
 from sigma_policy.views import project_points, tilt_slope
 from sigma_policy.yaw_scan import YawScanner
 
@@ -137,98 +138,6 @@ class NetworkConfig:
     @property
     def tokens_per_side(self) -> int:
         return self.img_size // self.patch_size
-
-
-def bilinear_upsample_matrix(size_in: int, scale: int, pad: int = 0) -> Tensor:
-    """``(size_in * scale + 2 pad, size_in)`` float64 matrix ``A`` with ``A @ x`` = bilinear upsampling of ``x``
-    along one axis by ``scale`` (``align_corners=False``, PyTorch's sampling), then replicate padding by ``pad``.
-
-    Output index ``i`` samples source ``max((i + 1/2) / scale - 1/2, 0)``, blended between its floor and the next
-    pixel (clamped to the last). The replicate border comes out of the same rule: for scale >= 1 the outermost
-    upsampled pixels already equal the outermost source pixels, and so do the border indices ``-pad .. -1`` and
-    ``size_in * scale .. + pad - 1``.
-    """
-    if size_in < 1 or scale < 1 or pad < 0:
-        raise ValueError(f"need size_in >= 1, scale >= 1, pad >= 0; got {size_in}, {scale}, {pad}")
-    dst = torch.arange(-pad, size_in * scale + pad, dtype=torch.float64)
-    src = ((dst + 0.5) / scale - 0.5).clamp_min(0)
-    lo = src.floor().long().clamp_max(size_in - 1)
-    hi = (lo + 1).clamp_max(size_in - 1)
-    w_hi = (src - lo).clamp(0, 1)
-    a = torch.zeros(len(dst), size_in, dtype=torch.float64)
-    rows = torch.arange(len(dst))
-    a.index_put_((rows, lo), 1 - w_hi, accumulate=True)
-    a.index_put_((rows, hi), w_hi, accumulate=True)
-    return a
-
-
-class BilinearUpsample(nn.Module):
-    """Bilinear x ``scale`` (``align_corners=False``) followed by replicate padding by ``pad``, as two small
-    matrix products ``A x A^T``. Same values as ``F.pad(F.interpolate(x, scale_factor=scale, mode="bilinear"),
-    (pad,) * 4, mode="replicate")``, but its backward is two matrix products too: PyTorch's upsample and
-    replicate-pad backward kernels scatter with atomics and took a quarter of the paper network's GPU step."""
-
-    def __init__(self, size_in: int, scale: int, pad: int = 0):
-        super().__init__()
-        self.register_buffer("matrix", bilinear_upsample_matrix(size_in, scale, pad), persistent=False)
-
-    def forward(self, x: Tensor) -> Tensor:
-        a = self.matrix.to(x.dtype)  # under autocast, matmul casts both to the autocast dtype anyway
-        return torch.matmul(torch.matmul(a, x), a.t())
-
-
-class Attention(nn.Module):
-    """Multi-head attention via SDPA: q (no bias), kv (no bias), out (bias); dropout on attention weights."""
-
-    def __init__(self, dim: int, heads: int, dim_head: int, dropout: float):
-        super().__init__()
-        inner = heads * dim_head
-        self.heads, self.dropout = heads, dropout
-        self.to_q = nn.Linear(dim, inner, bias=False)
-        self.to_kv = nn.Linear(dim, 2 * inner, bias=False)
-        self.to_out = nn.Linear(inner, dim)
-
-    def forward(self, x: Tensor, context: Tensor | None = None) -> Tensor:
-        context = x if context is None else context
-        q = self.to_q(x)
-        k, v = self.to_kv(context).chunk(2, dim=-1)
-        b, n, _ = q.shape
-        q, k, v = (t.reshape(b, t.shape[1], self.heads, -1).transpose(1, 2) for t in (q, k, v))
-        out = F.scaled_dot_product_attention(q, k, v, dropout_p=self.dropout if self.training else 0.0)
-        return self.to_out(out.transpose(1, 2).reshape(b, n, -1))
-
-
-class GEGLUFeedForward(nn.Module):
-    """Linear dim -> 8 dim, split into (a, b), a * GELU(b), Linear 4 dim -> dim."""
-
-    def __init__(self, dim: int, mult: int = 4):
-        super().__init__()
-        self.proj_in = nn.Linear(dim, dim * mult * 2)
-        self.proj_out = nn.Linear(dim * mult, dim)
-
-    def forward(self, x: Tensor) -> Tensor:
-        a, gate = self.proj_in(x).chunk(2, dim=-1)
-        return self.proj_out(a * F.gelu(gate))
-
-
-class TransformerLayer(nn.Module):
-    """Pre-LN layer: ``x + Attn(LN(x)[, LN(ctx)])`` then ``x + FF(LN(x))``; ``cross`` adds a context LayerNorm."""
-
-    def __init__(self, dim: int, heads: int, dim_head: int, dropout: float, cross: bool = False):
-        super().__init__()
-        self.norm_attn = nn.LayerNorm(dim)
-        self.norm_context = nn.LayerNorm(dim) if cross else None
-        self.attn = Attention(dim, heads, dim_head, dropout)
-        self.norm_ff = nn.LayerNorm(dim)
-        self.ff = GEGLUFeedForward(dim)
-
-    def forward(self, x: Tensor, context: Tensor | None = None) -> Tensor:
-        if self.norm_context is not None:
-            if context is None:
-                raise ValueError("a cross-attention layer needs a context")
-            context = self.norm_context(context)
-        x = x + self.attn(self.norm_attn(x), context)
-        return x + self.ff(self.norm_ff(x))
 
 
 def _stack(cfg: NetworkConfig, n: int, cross: bool = False) -> nn.ModuleList:

@@ -9,7 +9,8 @@ import torch
 import torch.nn.functional as F
 
 from sigma_policy.configuration_sigma import SigmaConfig
-from sigma_policy.network import BilinearUpsample, NetworkConfig, SigmaNetwork
+from sigma_policy.network import NetworkConfig, SigmaNetwork
+from sigma_policy.upsample import BilinearUpsample
 
 SMALL = NetworkConfig(
     img_size=32,
