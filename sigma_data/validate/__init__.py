@@ -36,8 +36,6 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
-import numpy as np
-
 from sigma_data.contract import (
     ACTION,
     IS_KEYFRAME,
@@ -61,7 +59,7 @@ from sigma_data.validate.episodes import (
     check_state_continuity,
 )
 from sigma_data.validate.report import Checker, CheckResult, Status, ValidateConfig, ValidationReport
-from sigma_data.validate.tables import check_plausible, check_rows, check_structure
+from sigma_data.validate.tables import check_finite, check_plausible, check_rows, check_structure
 
 __all__ = ["CheckResult", "Status", "ValidateConfig", "ValidationReport", "run_validate", "validate_dataset"]
 
@@ -92,11 +90,7 @@ def validate_dataset(cfg: ValidateConfig) -> ValidationReport:
 
     chk.row_starts = {ep: start for ep, (start, _stop) in bounds.items()}
     check_rows(chk, ds, cols, bounds)
-    for key in (STATE, ACTION):
-        bad = ~np.isfinite(cols[key]).all(axis=1)
-        if bad.any():
-            i = int(np.flatnonzero(bad)[0])
-            chk.at_row("values.finite", "error", "NaN or inf", eps[i], i, key)
+    check_finite(chk, cols)
     check_plausible(chk, cols, bounds, kind, ds.meta.fps, cfg)
     undecodable = check_images_decode(chk, ds, features, cameras, bounds, cfg)
     check_calibration(chk, cols, features, cameras, eps, cfg)

@@ -100,6 +100,16 @@ def check_rows(chk: Checker, ds, cols: dict[str, np.ndarray], bounds: dict) -> N
         chk.add("rows.count", "ok", f"{len(frame_index)} rows = the frames meta/episodes lists")
 
 
+def check_finite(chk: Checker, cols: dict[str, np.ndarray]) -> None:
+    """No NaN or inf in the state or the action (the first offending row of each is reported)."""
+    eps = cols["episode_index"].reshape(-1)
+    for key in (STATE, ACTION):
+        bad = ~np.isfinite(cols[key]).all(axis=1)
+        if bad.any():
+            i = int(np.flatnonzero(bad)[0])
+            chk.at_row("values.finite", "error", "NaN or inf", eps[i], i, key)
+
+
 def check_plausible(
     chk: Checker, cols: dict[str, np.ndarray], bounds: dict, kind: str, fps: float, cfg
 ) -> None:
