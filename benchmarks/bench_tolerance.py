@@ -6,12 +6,17 @@ upper bound), each keyframe moved by ``r`` cm in a random 3-D direction, or turn
 ``θ`` degrees with a random sign, drawn afresh per keyframe (a policy's errors are per keyframe too). The success
 rate per condition says how large a translation or yaw error each task tolerates, against which the policy's
 per-head errors (``sigma-diagnose``: median cm, yaw error) can be read. The draws are seeded by (seed, condition),
-so a rerun replays the same perturbations. Wilson 95% intervals; unless ``--publish false`` the table and the raw
+so a rerun replays the same perturbations. ``--steps`` perturbs only some keyframes (e.g. ``[0,1,2]``: the approach, the
+grasp and the close of Lift, Stack, PickPlace and NutAssembly), ``--horizontal`` moves them in the x-y plane and
+``--shared`` moves and turns them together by one draw, as a policy that copies its approach down errs (the grasp
+alone: RESULTS.md "Tolerance"). Wilson 95% intervals; unless ``--publish false`` the table and the raw
 numbers go to ``benchmarks/results/tolerance.{md,json}``.
 
     python -m benchmarks.bench_tolerance                                     # Lift, Stack, PickPlace, NutAssembly
     python -m benchmarks.bench_tolerance --tasks nut_assembly --seeds 10 --positions_cm '[1]' --yaws_deg '[]' \\
         --publish false
+    python -m benchmarks.bench_tolerance --tasks '[nut_assembly]' --steps '[0,1,2]' --horizontal true --shared true \\
+        --positions_cm '[0.5,1.0,1.5,2.0]' --yaws_deg '[10,20,30]' --workers 2 --publish false
 """
 
 from __future__ import annotations
@@ -50,6 +55,14 @@ class ToleranceConfig:
     # about the vertical (random sign), one perturbation kind at a time.
     positions_cm: list[float] = field(default_factory=lambda: [0.5, 1.0, 2.0, 3.0])
     yaws_deg: list[float] = field(default_factory=lambda: [10.0, 20.0])
+    # Which keyframes (0-based indices of each episode's) are perturbed; empty: every keyframe.
+    steps: list[int] = field(default_factory=list)
+    # Move in a random horizontal direction instead of a 3-D one (the grasp misses of docs/learning.md are
+    # horizontal: a finger comes down on the object's edge).
+    horizontal: bool = False
+    # One draw per replay, shared by every perturbed keyframe, instead of a fresh one per keyframe: a grasp that
+    # copies its approach's position and yaw (docs/learning.md "The hand marker") carries the approach's error down.
+    shared: bool = False
     # Worker processes, one variation each at a time (2 cores: keep <= 2).
     workers: int = 1
     # Write benchmarks/results/tolerance.{md,json} (RESULTS.md includes them).
@@ -67,23 +80,42 @@ def condition_name(cm: float, deg: float) -> str:
     return f"{deg:g}°" if deg else "exact"
 
 
-def perturb(keyframes: np.ndarray, cm: float, deg: float, rng: np.random.Generator) -> np.ndarray:
+def perturb(
+    keyframes: np.ndarray,
+    cm: float,
+    deg: float,
+    rng: np.random.Generator,
+    steps: list[int] | None = None,
+    horizontal: bool = False,
+    shared: bool = False,
+) -> np.ndarray:
     """``keyframes`` (K, 9) with each position moved by ``cm`` in a random direction and each orientation turned
     about the world z axis by ``deg`` with a random sign (quaternions x, y, z, w); the gripper and collision
-    flags are kept."""
+    flags are kept. ``steps`` limits the change to those keyframe indices (those beyond the episode are ignored),
+    ``horizontal`` draws the direction in the x-y plane, ``shared`` draws once for all of them."""
     out = np.array(keyframes, dtype=np.float64, copy=True)
-    k = len(out)
+    rows = np.arange(len(out)) if not steps else np.array([i for i in steps if 0 <= i < len(out)], dtype=int)
+    if not len(rows):
+        return out
+    k = 1 if shared else len(rows)
     if cm:
         direction = rng.normal(size=(k, 3))
-        out[:, :3] += 0.01 * cm * direction / np.linalg.norm(direction, axis=1, keepdims=True)
+        if horizontal:
+            direction[:, 2] = 0.0
+        out[rows, :3] += 0.01 * cm * direction / np.linalg.norm(direction, axis=1, keepdims=True)
     if deg:
-        turn = Rotation.from_euler("z", rng.choice([-deg, deg], size=(k, 1)), degrees=True)
-        out[:, 3:7] = (turn * Rotation.from_quat(out[:, 3:7])).as_quat()
+        angles = np.broadcast_to(rng.choice([-deg, deg], size=(k, 1)), (len(rows), 1))
+        turn = Rotation.from_euler("z", angles, degrees=True)
+        out[rows, 3:7] = (turn * Rotation.from_quat(out[rows, 3:7])).as_quat()
     return out
 
 
 def run_variation(
-    task_name: str, variation_name: str, seeds: list[int], conds: list[tuple[float, float]]
+    task_name: str,
+    variation_name: str,
+    seeds: list[int],
+    conds: list[tuple[float, float]],
+    how: dict | None = None,
 ) -> dict:
     """Expert, then one perturbed replay per condition, for each seed of one variation (no cameras)."""
     quiet_robosuite()
@@ -103,7 +135,7 @@ def run_variation(
             for i, (cm, deg) in enumerate(conds):
                 reset_env(env, task, variation, seed)
                 rng = np.random.default_rng([seed, i])
-                KeyframeExecutor(EnvDriver(env)).execute_all(perturb(keyframes, cm, deg, rng))
+                KeyframeExecutor(EnvDriver(env)).execute_all(perturb(keyframes, cm, deg, rng, **(how or {})))
                 results[condition_name(cm, deg)].append(bool(task.success(env, variation)))
     finally:
         close_env(env)
@@ -145,9 +177,10 @@ def main(argv: list[str] | None = None) -> list[dict]:
         raise ValueError("--tasks names no task")
     seeds = list(range(cfg.start_seed, cfg.start_seed + cfg.seeds))
     conds = conditions(cfg)
+    how = {"steps": cfg.steps, "horizontal": cfg.horizontal, "shared": cfg.shared}
     start = time.perf_counter()
     with ProcessPoolExecutor(max_workers=max(1, min(cfg.workers, 2))) as pool:
-        futures = [pool.submit(run_variation, t, v, seeds, conds) for t, v in jobs]
+        futures = [pool.submit(run_variation, t, v, seeds, conds, how) for t, v in jobs]
         outcomes = [f.result() for f in tqdm(futures, desc="variations", unit="var")]
     table = markdown(outcomes, conds)
     print(table)

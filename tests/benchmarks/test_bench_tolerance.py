@@ -35,6 +35,27 @@ def test_every_keyframe_turns_by_exactly_theta_about_the_vertical():
     np.testing.assert_allclose(rotvec[:, :2], 0.0, atol=1e-9)
 
 
+def test_chosen_keyframes_share_one_horizontal_move_and_turn():
+    """``steps``/``horizontal``/``shared``: the approach, grasp and close (0-2) move together, in x-y, and turn by
+    the same angle; the later keyframes are the expert's."""
+    kf = _keyframes(6)
+    moved = perturb(kf, 1.5, 20.0, np.random.default_rng(5), steps=[0, 1, 2, 9], horizontal=True, shared=True)
+    shift = moved[:3, :3] - kf[:3, :3]
+    np.testing.assert_allclose(shift, np.broadcast_to(shift[0], (3, 3)), atol=1e-12)
+    np.testing.assert_allclose(np.linalg.norm(shift[0, :2]), 0.015, atol=1e-12)
+    assert shift[0, 2] == 0.0
+    turns = (Rotation.from_quat(moved[:3, 3:7]) * Rotation.from_quat(kf[:3, 3:7]).inv()).as_rotvec(
+        degrees=True
+    )
+    np.testing.assert_allclose(turns, np.broadcast_to(turns[0], (3, 3)), atol=1e-9)
+    np.testing.assert_allclose(abs(turns[0, 2]), 20.0, atol=1e-9)
+    np.testing.assert_array_equal(moved[3:], kf[3:])
+    unshared = perturb(kf, 1.5, 0.0, np.random.default_rng(5), steps=[0, 1, 2])
+    assert not np.allclose(
+        unshared[0, :3] - kf[0, :3], unshared[1, :3] - kf[1, :3]
+    )  # fresh draw per keyframe
+
+
 def test_conditions_and_table():
     cfg = ToleranceConfig(positions_cm=[1.0], yaws_deg=[20.0])
     conds = conditions(cfg)
