@@ -115,9 +115,12 @@ def run_variation(
     variation_name: str,
     seeds: list[int],
     conds: list[tuple[float, float]],
-    how: dict | None = None,
+    steps: list[int] | None = None,
+    horizontal: bool = False,
+    shared: bool = False,
 ) -> dict:
-    """Expert, then one perturbed replay per condition, for each seed of one variation (no cameras)."""
+    """Expert, then one perturbed replay per condition, for each seed of one variation (no cameras); ``steps``,
+    ``horizontal`` and ``shared`` as :func:`perturb` takes them."""
     quiet_robosuite()
     task = get_task(task_name)
     variation = get_variation(task, variation_name)
@@ -135,7 +138,9 @@ def run_variation(
             for i, (cm, deg) in enumerate(conds):
                 reset_env(env, task, variation, seed)
                 rng = np.random.default_rng([seed, i])
-                KeyframeExecutor(EnvDriver(env)).execute_all(perturb(keyframes, cm, deg, rng, **(how or {})))
+                KeyframeExecutor(EnvDriver(env)).execute_all(
+                    perturb(keyframes, cm, deg, rng, steps, horizontal, shared)
+                )
                 results[condition_name(cm, deg)].append(bool(task.success(env, variation)))
     finally:
         close_env(env)
@@ -177,10 +182,12 @@ def main(argv: list[str] | None = None) -> list[dict]:
         raise ValueError("--tasks names no task")
     seeds = list(range(cfg.start_seed, cfg.start_seed + cfg.seeds))
     conds = conditions(cfg)
-    how = {"steps": cfg.steps, "horizontal": cfg.horizontal, "shared": cfg.shared}
     start = time.perf_counter()
     with ProcessPoolExecutor(max_workers=max(1, min(cfg.workers, 2))) as pool:
-        futures = [pool.submit(run_variation, t, v, seeds, conds, how) for t, v in jobs]
+        futures = [
+            pool.submit(run_variation, t, v, seeds, conds, cfg.steps, cfg.horizontal, cfg.shared)
+            for t, v in jobs
+        ]
         outcomes = [f.result() for f in tqdm(futures, desc="variations", unit="var")]
     table = markdown(outcomes, conds)
     print(table)
