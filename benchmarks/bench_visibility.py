@@ -7,7 +7,7 @@ robosuite from its collection seed, and for each instruction the named object is
 ``frames``) of that instruction's episode: 0 is the start frame (the same for every instruction), 1 the hand at the
 first keyframe (above the object), 2 at the second (lowered to the grasp point, open). The objects do not move
 before the grasp, so their rebuilt geometry holds there. The frame's camera cloud is rendered as the policy renders
-it (its box, image size, splat radius and ``hand_mask_box``), once per side-view tilt (sigma_policy/views.py) and per
+it (its box, image size and splat radius), once per side-view tilt (sigma_policy/views.py) and per
 entry of ``hand_masks`` (true: also without the points inside PANDA_HAND_BOX, the Panda hand), and a pixel counts
 for an object when the point it shows lies inside that object's bounding box (from its collision geometry,
 ``TaskSpec.points``; points within ``floor_clear_m`` of the object's bottom are left out, so the floor under it does
@@ -32,8 +32,14 @@ import torch
 
 from pipelines.diagnostics import DiagnoseConfig, keyframe_sets
 from pipelines.instruction_swap import swap_scenes
-from sigma_policy.configuration_sigma import PANDA_HAND_BOX
-from sigma_policy.pointcloud import bounds_mask, cube_to_world, drop_points, hand_points, world_to_cube
+from sigma_policy.pointcloud import (
+    PANDA_HAND_BOX,
+    bounds_mask,
+    cube_to_world,
+    drop_points,
+    hand_points,
+    world_to_cube,
+)
 from sigma_policy.renderer import VIEW_NAMES, VirtualViewRenderer
 
 
@@ -46,8 +52,8 @@ class VisibilityConfig:
     tilts: list[float] = field(default_factory=lambda: [0.0, 45.0])  # side-view tilts to compare (degrees)
     # Frames of each instruction's episode counted: 0 the start, 1 the first keyframe (above the object), 2 the grasp.
     frames: list[int] = field(default_factory=lambda: [0])
-    # false: the cloud as the checkpoint renders it (its own hand_mask_box, none in every preset); true: also without
-    # the points inside PANDA_HAND_BOX (the Panda hand and the arm above it).
+    # false: the cloud as the checkpoint renders it; true: without the points inside PANDA_HAND_BOX (the Panda hand
+    # and the arm above it, sigma_policy/pointcloud.py).
     hand_masks: list[bool] = field(default_factory=lambda: [False])
     scenes: int = 8  # training scenes counted (the first of the keyframe dataset)
     margin_m: float = 0.005  # the objects' boxes are grown by this much

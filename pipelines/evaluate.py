@@ -75,9 +75,6 @@ class EvalConfig:
     # The test-time yaw ensemble's extra angles (degrees; the policy's `tta_yaw_deg`, sigma_policy/test_time.py);
     # None: the checkpoint's own (off unless it was trained with them set).
     tta_yaw_deg: list[float] | None = None
-    # Whether a policy trained with the zoomed second stage (`zoom_box_m`, sigma_policy/zoom.py) runs it; None: the
-    # checkpoint's own (on). False scores the same weights on their first pass alone.
-    zoom_at_inference: bool | None = None
     # Instruction-contrastive decoding's weight (the policy's `instruction_contrast`, in [0, 1);
     # sigma_policy/instruction_contrast.py); None: the checkpoint's own (0, off, unless it was trained with it set).
     # It needs the policy's instruction -> task map, which checkpoints saved before 2026-11-29 lack: it is then read
@@ -159,8 +156,6 @@ class _Worker:
         self.policy, self.pre, self.post = load_policy(cfg.checkpoint, cfg.device)
         if cfg.tta_yaw_deg is not None:  # checked in run_eval
             self.policy.config.tta_yaw_deg = [float(a) for a in cfg.tta_yaw_deg]
-        if cfg.zoom_at_inference is not None:
-            self.policy.config.zoom_at_inference = cfg.zoom_at_inference
         if cfg.instruction_contrast is not None:  # checked in run_eval
             self.policy.config.instruction_contrast = cfg.instruction_contrast
             if not self.policy.config.instruction_tasks and cfg.train_dataset is not None:

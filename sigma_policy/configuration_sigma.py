@@ -99,11 +99,14 @@ ignore_collision], an absolute world-frame next-keyframe pose (quaternion xyzw, 
 
 from __future__ import annotations
 
+import json
 import math
+import tempfile
 from dataclasses import dataclass, field, fields
 from pathlib import Path
 from typing import Any
 
+from huggingface_hub.constants import CONFIG_NAME
 from lerobot.configs.policies import PreTrainedConfig
 from lerobot.configs.types import FeatureType, NormalizationMode
 from lerobot.optim.schedulers import CosineDecayWithWarmupSchedulerConfig
@@ -122,9 +125,9 @@ from sigma_data.contract import (  # the data contract: the only sigma_data modu
 )
 from sigma_policy.instruction_contrast import check_contrast_weight
 from sigma_policy.lamb import LambConfig
-from sigma_policy.network import VIEW_CHANNELS, NetworkConfig
+from sigma_policy.network import NetworkConfig
+from sigma_policy.retired import drop_retired
 from sigma_policy.test_time import check_yaw_angles
-from sigma_policy.zoom import check_zoom
 
 PRESETS: dict[str, dict[str, Any]] = {
     "paper": {
@@ -209,10 +212,6 @@ PRESETS["gpu"] = PRESETS["suite"] | {
 ACTION_DIM = KEYFRAME_ACTION_DIM
 # A 1 m box over robosuite's table (x toward the robot's front, z up; the table top is at z = 0.8 m).
 DEFAULT_SCENE_BOUNDS = [-0.4, -0.55, 0.75, 0.6, 0.5, 1.75]
-# robosuite's Panda in its grip site's frame (z from the palm to the fingertips, x the closing axis): the hand body
-# (22 cm along x, 6.4 cm across, its underside 2.5 cm behind the site) and link 7 (12.4 cm across), from 3 cm
-# behind the site to 1 m behind it. For ``hand_mask_box``.
-PANDA_HAND_BOX = [-0.11, -0.065, -1.0, 0.11, 0.065, -0.03]
 
 
 def _is_box(box: list[float]) -> bool:
@@ -274,34 +273,10 @@ class SigmaConfig(PreTrainedConfig):
     # Channels of the heads' local encoder (network.LocalEncoder: full-resolution dilated convolutions pooled at
     # the keyframe position); 0 = off. None = from preset.
     local_channels: int | None = None
-    # 3x3 convolutions after the 1x1 input convolution (network.NetworkConfig.stem_layers): each pixel's features
-    # then describe its neighbourhood (an object's outline and height profile), for the patch embedding and the
-    # decoder's skip. 0 = off (the paper).
-    stem_layers: int = 0
     # Side views tilted down by this many degrees (sigma_policy/views.py), so that they see over a container's rim,
     # e.g. PickPlace's bins, whose walls hide the bread and the can from horizontal views (docs/learning.md). 0 =
     # RVT's horizontal side views (every preset: 45° and 30° both fitted and scored worse on PickPlace).
     side_tilt_deg: float = 0.0
-    # Cloud points inside this box of the grip site's frame (``observation.state``'s pose; x_lo, y_lo, z_lo, x_hi,
-    # y_hi, z_hi in metres) are dropped before rendering, in training and inference alike. The site's z axis points
-    # from the palm to the fingertips, so PANDA_HAND_BOX is robosuite's Panda hand and the arm above it, which in
-    # the top view hide whatever the fingers are over (docs/learning.md, "The hand hides what it is over"); the
-    # fingers stay. None = every point kept (RVT). ``hand_mask_views``: "all" drops them from the cloud; "top" only
-    # from the top view, so the side views still show where the hand is.
-    hand_mask_box: list[float] | None = None
-    hand_mask_views: str = "all"
-    # An 11th channel in every view (sigma addition): a Gaussian of ``gt_heatmap_sigma`` pixels, peak 1, at the
-    # projection of the frame's grip site (``observation.state``), moved by the same augmentation as the cloud. The
-    # hand's pixel reference when ``hand_mask_box`` takes the hand's points out of the views (docs/method.md §4.3).
-    # Off in every preset: on the CPU suite the grasp then copied the hand's position down (docs/learning.md, "The
-    # hand marker").
-    hand_marker: bool = False
-    # Training only: the current frame's grip site that the hand marker and the proprio token get is moved by a
-    # uniform offset of up to this many metres in x and in y (per sample), the target not. In the demonstrations the
-    # hand is always right above what it grasps next, and with the marker the policy learns to copy the hand's
-    # position down instead of correcting a pre-grasp that is off. 0 = off; 0.02 copied less but scored no better
-    # on the CPU suite (docs/learning.md, "The hand marker").
-    hand_site_noise_m: float = 0.0
     # Rotation-equivariant yaw scores (sigma_policy/yaw_scan.py): side (pixels) of the top-view crop around the
     # keyframe position that is turned to every yaw bin and scored by one CNN (0 = off); its channels; the training
     # jitter (pixels, uniform per axis) of the crop's centre about the target's projection, standing in for the
@@ -325,16 +300,6 @@ class SigmaConfig(PreTrainedConfig):
     # one points at; the heads are then run at the contrasted point. In [0, 1); 0 = off (every preset); each other
     # instruction of the task adds one network run, and one more runs the heads.
     instruction_contrast: float = 0.0
-    # Zoomed second stage (sigma_policy/zoom.py, after RVT-2's coarse-to-fine): at inference a second pass renders a
-    # cube of ``zoom_box_m`` metres centred on the first pass's point and its prediction is the action; in training
-    # ``zoom_share`` of the samples are rendered in such a cube centred within ``zoom_jitter_m`` metres (per axis) of
-    # the target. 0 = off (every preset); on, the proprio token also reads the box's side and centre.
-    # ``zoom_at_inference=False`` keeps a zoom-trained policy to its first pass (the same weights without the second
-    # look).
-    zoom_box_m: float = 0.0
-    zoom_share: float = 0.5
-    zoom_jitter_m: float = 0.05
-    zoom_at_inference: bool = True
     # Sub-voxel refinement of the translation at inference: centroid of the score profiles within this many
     # voxels of the argmax (sigma_policy/heatmap.py); 0 = the argmax voxel centre (RVT). None = from preset
     # (paper 0, small 2).
@@ -421,27 +386,29 @@ class SigmaConfig(PreTrainedConfig):
         for instruction, box in self.instruction_bounds.items():
             if not _is_box(box):
                 raise ValueError(f"policy.instruction_bounds[{instruction!r}] must be a box of 6, got {box}")
-        if self.hand_mask_views not in ("all", "top"):
-            raise ValueError(f"policy.hand_mask_views must be 'all' or 'top', got {self.hand_mask_views!r}")
-        if self.hand_mask_box is not None and not _is_box(self.hand_mask_box):
-            raise ValueError(
-                f"policy.hand_mask_box must be (x_lo, y_lo, z_lo, x_hi, y_hi, z_hi), got {self.hand_mask_box}"
-            )
-        if not self.hand_site_noise_m >= 0.0:
-            raise ValueError(f"policy.hand_site_noise_m must be >= 0, got {self.hand_site_noise_m}")
         self.tta_yaw_deg = check_yaw_angles(self.tta_yaw_deg, self.num_rotation_bins)
         self.instruction_contrast = check_contrast_weight(self.instruction_contrast)
         if not self.tta_radius_m > 0.0:
             raise ValueError(f"policy.tta_radius_m must be > 0, got {self.tta_radius_m}")
-        check_zoom(self.zoom_box_m, self.zoom_share, self.zoom_jitter_m)
-        if self.zoom_box_m and not (self.use_proprio and self.proprio_position):
-            raise ValueError(
-                "policy.zoom_box_m needs use_proprio and proprio_position: the proprio token tells the network which "
-                "box it sees and where the hand is in it"
-            )
         self.network_config()  # validates the architecture numbers early
 
     # ------------------------------------------------------------------ LeRobot hooks
+    @classmethod
+    def from_pretrained(cls, pretrained_name_or_path: str | Path, **kwargs: Any) -> SigmaConfig:
+        """LeRobot's reader of a saved ``config.json``, after taking out the options sigma has retired
+        (sigma_policy/retired.py): a checkpoint saved before an option was removed loads if it left that option
+        off, and is refused, naming the file and the option, if it did not."""
+        config_file = Path(pretrained_name_or_path) / CONFIG_NAME
+        if not config_file.is_file():  # a hub id, or no config: LeRobot's own reader says what is wrong
+            return super().from_pretrained(pretrained_name_or_path, **kwargs)
+        values = json.loads(config_file.read_text())
+        kept = drop_retired(values, str(config_file))
+        if kept == values:
+            return super().from_pretrained(pretrained_name_or_path, **kwargs)
+        with tempfile.TemporaryDirectory() as tmp:
+            (Path(tmp) / CONFIG_NAME).write_text(json.dumps(kept))
+            return super().from_pretrained(tmp, **kwargs)
+
     @property
     def drop_n_last_frames(self) -> int:
         """The last keyframe of an episode is a goal only, never a training sample."""
@@ -563,12 +530,6 @@ class SigmaConfig(PreTrainedConfig):
         """Architecture numbers for ``SigmaNetwork`` (language dimensions come from the text encoder)."""
         names = {f.name for f in fields(NetworkConfig)}
         values = {k: getattr(self, k) for k in names if hasattr(self, k) and getattr(self, k) is not None}
-        values["proprio_dim"] = (
-            3
-            + 3 * bool(self.proprio_position)
-            + 6 * bool(self.proprio_orientation)
-            + 4 * (self.zoom_box_m > 0)
-        )
+        values["proprio_dim"] = 3 + 3 * bool(self.proprio_position) + 6 * bool(self.proprio_orientation)
         values["head_pool_sigma"] = self.gt_heatmap_sigma
-        values["in_channels"] = VIEW_CHANNELS + int(self.hand_marker)
         return NetworkConfig(**values)

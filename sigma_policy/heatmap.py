@@ -39,12 +39,12 @@ from sigma_policy.views import VIEW_AXES, project_points, tilt_slope
 __all__ = ["gaussian_heatmaps", "heatmap_to_cube_point", "voxel_centres"]
 
 
-def gaussian_heatmaps(uv: Tensor, img_size: int, sigma: float = 1.5, normalise: bool = True) -> Tensor:
+def gaussian_heatmaps(uv: Tensor, img_size: int, sigma: float = 1.5) -> Tensor:
     """Gaussian targets ``(B, V, H, W)`` centred at continuous pixel coordinates ``uv (B, V, 2)`` (u = column).
 
     ``exp(-d^2 / (2 sigma^2))`` with ``d`` the distance from ``(u, v)`` to each pixel centre, zero beyond 3 sigma,
-    normalised to sum 1 per view (docs/method.md §6.1), or left with its peak at most 1 when ``normalise`` is false (the
-    hand marker, docs/method.md §4.3). A view whose target lies more than 3 sigma outside the image is all zeros.
+    normalised to sum 1 per view (docs/method.md §6.1). A view whose target lies more than 3 sigma outside the image
+    is all zeros.
     """
     if uv.ndim != 3 or uv.shape[-1] != 2:
         raise ValueError(f"uv must be (B, V, 2), got {tuple(uv.shape)}")
@@ -54,7 +54,7 @@ def gaussian_heatmaps(uv: Tensor, img_size: int, sigma: float = 1.5, normalise: 
     d2 = dv2[..., :, None] + du2[..., None, :]
     hm = torch.exp(-d2 / (2 * sigma**2))
     hm = torch.where(d2 <= (3 * sigma) ** 2, hm, 0)
-    return hm / hm.sum((-2, -1), keepdim=True).clamp_min(1e-12) if normalise else hm
+    return hm / hm.sum((-2, -1), keepdim=True).clamp_min(1e-12)
 
 
 def voxel_centres(img_size: int, device: torch.device | str | None = None) -> Tensor:

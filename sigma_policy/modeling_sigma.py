@@ -26,6 +26,7 @@ from __future__ import annotations
 import logging
 from contextlib import nullcontext
 from dataclasses import dataclass
+from pathlib import Path
 from typing import Any
 
 import torch
@@ -42,15 +43,8 @@ from sigma_policy.contrastive import contrastive_losses, instruction_ids
 from sigma_policy.heatmap import gaussian_heatmaps, heatmap_to_cube_point
 from sigma_policy.instruction_contrast import contrasted_logits, task_alternatives
 from sigma_policy.network import NetworkOutput, SigmaNetwork, predicted_uv
-from sigma_policy.pointcloud import (
-    bounds_mask,
-    cube_to_world,
-    depth_to_world_points,
-    drop_points,
-    hand_points,
-    world_to_cube,
-)
-from sigma_policy.renderer import VIEW_NAMES, VirtualViewRenderer
+from sigma_policy.pointcloud import bounds_mask, cube_to_world, depth_to_world_points, world_to_cube
+from sigma_policy.renderer import VirtualViewRenderer
 from sigma_policy.rotation import bins_to_quat, quat_to_bins, quat_to_matrix
 from sigma_policy.test_time import (
     EnsemblePass,
@@ -60,7 +54,6 @@ from sigma_policy.test_time import (
     yaw_about_box_centre,
 )
 from sigma_policy.text_encoder import make_text_encoder
-from sigma_policy.zoom import box_code, cube_around, training_boxes
 
 
 def _cpu_has_bf16() -> bool:
@@ -77,8 +70,7 @@ class SigmaPrediction:
     """One inference step, for acting and for visualisation (all tensors on the policy device)."""
 
     action: Tensor  # (B, 9) world-frame next-keyframe action
-    # (B, V, 10, H, W) rendered virtual views (channels: xyz, rgb, depth, view id, row, col; + the hand marker)
-    views: Tensor
+    views: Tensor  # (B, V, 10, H, W) rendered virtual views (channels: xyz, rgb, depth, view id, row, col)
     heatmaps: Tensor  # (B, V, H, W) per-view translation probabilities (each view sums to 1)
     point_cube: Tensor  # (B, 3) predicted translation in cube coordinates
     point_world: Tensor  # (B, 3) predicted translation in world metres
@@ -91,15 +83,10 @@ class SigmaPrediction:
     cloud_colors: Tensor  # (B, N, 3) its RGB in [0, 1]
 
 
-_TOP = VIEW_NAMES.index("top")
-
-
 @dataclass
 class _Cloud:
     points: Tensor  # (B, N, 3) world metres; NaN where depth was invalid
     colors: Tensor  # (B, N, 3) RGB in [0, 1]
-    # (B, N) the hand's points, kept in the cloud but left out of the top view (hand_mask_views="top"); else None
-    hand: Tensor | None = None
 
 
 class SigmaPolicy(PreTrainedPolicy):
@@ -146,6 +133,14 @@ class SigmaPolicy(PreTrainedPolicy):
             "scene_bounds", torch.tensor(config.scene_bounds, dtype=torch.float32), persistent=False
         )
         self.last_prediction: SigmaPrediction | None = None
+
+    @classmethod
+    def from_pretrained(cls, pretrained_name_or_path: Any, *, config: SigmaConfig | None = None, **kwargs):
+        """LeRobot's loader, with the config read by :meth:`SigmaConfig.from_pretrained` (which takes out the
+        options sigma has retired, sigma_policy/retired.py) when none is given."""
+        if config is None and Path(pretrained_name_or_path).is_dir():
+            config = SigmaConfig.from_pretrained(pretrained_name_or_path)
+        return super().from_pretrained(pretrained_name_or_path, config=config, **kwargs)
 
     @classmethod
     def _load_as_safetensor(cls, model, model_file: str, map_location: str, strict: bool):
@@ -252,25 +247,13 @@ class SigmaPolicy(PreTrainedPolicy):
             xyz_range=cfg.aug_translation_range,
             yaw_range_deg=cfg.aug_yaw_range_deg,
         )
-        if cfg.zoom_box_m:
-            # a share of the samples is seen as the second stage sees it (sigma_policy/zoom.py)
-            bounds, _ = training_boxes(bounds, pos, cfg.zoom_box_m, cfg.zoom_share, cfg.zoom_jitter_m)
-        views = self._add_render_noise(self._render(points, cloud.colors, bounds, cloud.hand))
-        site = None  # the grip site the marker and the proprio token get (read only where one of them is on)
-        if cfg.hand_marker or (cfg.use_proprio and cfg.proprio_position):
-            site = self._site(batch, 0, transforms)
-            # With hand_site_noise_m the hand's inputs are off by a few cm and the target is not: read its pixels.
-            if cfg.hand_site_noise_m > 0:
-                shift = (torch.rand_like(site) * 2 - 1) * cfg.hand_site_noise_m
-                site = site + shift * torch.tensor([1.0, 1.0, 0.0], device=site.device)
-        if cfg.hand_marker:
-            views = self._mark_hand(views, site, bounds)
+        views = self._add_render_noise(self._render(points, cloud.colors, bounds))
 
         goal_views = None
         if cfg.use_contrastive:
             goal = self._cloud(batch, t=1)
             state = self._take(batch, OBS_STATE, t=1, item_ndim=1).float()
-            goal_points, goal_site, *_ = se3_augment(
+            goal_points, *_ = se3_augment(
                 goal.points,
                 state[:, :3],
                 state[:, STATE_QUAT],
@@ -278,9 +261,7 @@ class SigmaPolicy(PreTrainedPolicy):
                 xyz_range=cfg.aug_translation_range,
                 yaw_range_deg=cfg.aug_yaw_range_deg,
             )
-            goal_views = self._add_render_noise(self._render(goal_points, goal.colors, bounds, goal.hand))
-            if cfg.hand_marker:
-                goal_views = self._mark_hand(goal_views, goal_site, bounds)
+            goal_views = self._add_render_noise(self._render(goal_points, goal.colors, bounds))
 
         target_uv = self.renderer.project(world_to_cube(pos[:, None], bounds))[:, 0]  # (B, V, 2)
         target_hm = gaussian_heatmaps(target_uv, cfg.img_size, sigma=cfg.gt_heatmap_sigma)
@@ -297,7 +278,6 @@ class SigmaPolicy(PreTrainedPolicy):
             transforms=transforms,
             head_heatmap=target_hm,
             head_uv=scan_uv,
-            site=site,
         )
 
         # ---- behaviour cloning (per sample)
@@ -355,10 +335,6 @@ class SigmaPolicy(PreTrainedPolicy):
         if cfg.tta_yaw_deg:
             turned = [self._predict_pass(cloud, tasks, bounds, batch, d)[2] for d in cfg.tta_yaw_deg]
             best = consensus([best, *turned], cfg.tta_radius_m)
-        if cfg.zoom_box_m and cfg.zoom_at_inference:
-            # the second stage, in a cube around the first one's point (sigma_policy/zoom.py)
-            bounds = cube_around(best.point, cfg.zoom_box_m, bounds)
-            views, out, best = self._predict_pass(cloud, tasks, bounds, batch)
         point_world = best.point
         rot_bins = best.rotation_probs.argmax(-1)
         quat = bins_to_quat(rot_bins, cfg.num_rotation_bins)
@@ -390,9 +366,7 @@ class SigmaPolicy(PreTrainedPolicy):
         cfg = self.config
         T = yaw_about_box_centre(bounds, degrees) if degrees else None
         points = transform_points(T, cloud.points) if T is not None else cloud.points
-        views = self._render(points, cloud.colors, bounds, cloud.hand)
-        if cfg.hand_marker:
-            views = self._mark_hand(views, self._site(batch, 0, T), bounds)
+        views = self._render(points, cloud.colors, bounds)
         out = self._run_network(views, tasks, batch, bounds, transforms=T)
         if cfg.instruction_contrast:
             out = self._contrast_instructions(views, tasks, batch, bounds, T, out)
@@ -553,8 +527,7 @@ class SigmaPolicy(PreTrainedPolicy):
         return instruction_ids(instructions, device=device) if cfg.mask_same_instruction else None
 
     def _cloud(self, batch: dict[str, Any], t: int) -> _Cloud:
-        """Fused world-frame point cloud of all cameras at frame ``t``; with ``hand_mask_box`` less the hand's points,
-        or (``hand_mask_views="top"``) with them marked for the top view to leave out."""
+        """Fused world-frame point cloud of all cameras at frame ``t``."""
         scale = 1 / MM_PER_M if self.config.depth_unit == "mm" else 1.0
         points, colors = [], []
         for cam in self.cameras:
@@ -571,13 +544,7 @@ class SigmaPolicy(PreTrainedPolicy):
                 )
             points.append(depth_to_world_points(depth, K, E).flatten(1, 2))
             colors.append(rgb.flatten(2).transpose(1, 2))
-        cloud, hand = torch.cat(points, 1), None
-        if self.config.hand_mask_box is not None:  # the hand and the arm above it, from the frame's own state
-            state = self._take(batch, OBS_STATE, t, 1).float().to(cloud.device)
-            hand = hand_points(cloud, state, self.config.hand_mask_box)
-            if self.config.hand_mask_views == "all":
-                cloud, hand = drop_points(cloud, hand), None
-        return _Cloud(points=cloud, colors=torch.cat(colors, 1).clamp(0, 1), hand=hand)
+        return _Cloud(points=torch.cat(points, 1), colors=torch.cat(colors, 1).clamp(0, 1))
 
     @staticmethod
     def _cloud_box(points: Tensor, bounds: Tensor) -> Tensor:
@@ -590,15 +557,8 @@ class SigmaPolicy(PreTrainedPolicy):
             raise ValueError("place_with_mean_at_eval: a sample has no points inside scene_bounds")
         return torch.cat([lo, hi], -1)
 
-    def _render(self, points: Tensor, colors: Tensor, bounds: Tensor, hand: Tensor | None = None) -> Tensor:
-        """Crop to ``bounds`` ((6,) shared or (B, 6) per sample), map to the cube and render (B, V, 10, H, W); the
-        top view without the ``hand`` points (B, N) when given."""
-        views = self._render_cloud(points, colors, bounds)
-        if hand is not None:  # the top view shows what the hand is over (hand_mask_views="top")
-            views[:, _TOP] = self._render_cloud(drop_points(points, hand), colors, bounds)[:, _TOP]
-        return views
-
-    def _render_cloud(self, points: Tensor, colors: Tensor, bounds: Tensor) -> Tensor:
+    def _render(self, points: Tensor, colors: Tensor, bounds: Tensor) -> Tensor:
+        """Crop to ``bounds`` ((6,) shared or (B, 6) per sample), map to the cube and render (B, V, 10, H, W)."""
         mask = bounds_mask(points, bounds)
         # Keep only in-bounds points (padded to the largest count in the batch): rendering cost scales with N.
         keep = int(mask.sum(1).max())
@@ -618,15 +578,6 @@ class SigmaPolicy(PreTrainedPolicy):
         if transforms is None:
             return pos
         return transform_points(transforms, pos)
-
-    def _mark_hand(self, views: Tensor, site: Tensor, bounds: Tensor) -> Tensor:
-        """``views`` (B, V, C, H, W) and the hand marker (``hand_marker``) as channel C: a Gaussian of peak 1 at the
-        projection of the grip site ``site`` (B, 3, world metres) in the cube of ``bounds``."""
-        uv = self.renderer.project(world_to_cube(site[:, None], bounds))[:, 0]  # (B, V, 2)
-        marker = gaussian_heatmaps(
-            uv, self.config.img_size, sigma=self.config.gt_heatmap_sigma, normalise=False
-        )
-        return torch.cat([views, marker[:, :, None].to(views.dtype)], dim=2)
 
     def _add_render_noise(self, views: Tensor) -> Tensor:
         """Uniform noise U(-s, s), s = image_noise · U(0, 1) per batch, on channels 0-6, then clamp to [-1, 1]."""
@@ -651,34 +602,22 @@ class SigmaPolicy(PreTrainedPolicy):
         sentence = torch.stack([self._lang_cache[s][1] for s in tasks])
         return tokens, sentence
 
-    def _proprio(
-        self,
-        batch: dict[str, Any],
-        bounds: Tensor,
-        transforms: Tensor | None,
-        site: Tensor | None = None,
-        task_bounds: Tensor | None = None,
-    ) -> Tensor | None:
+    def _proprio(self, batch: dict[str, Any], bounds: Tensor, transforms: Tensor | None) -> Tensor | None:
         """The proprio token's input: [gripper_open, finger_q1, finger_q2] (+ the grip site's position in the
         scene box with ``proprio_position``, + its orientation as the first two columns of its rotation matrix with
-        ``proprio_orientation``; both moved by the same augmentation as the cloud). ``site`` (B, 3, world metres)
-        replaces the position read from ``batch`` (training with ``hand_site_noise_m``). With ``zoom_box_m``, the box's
-        side and centre in the sample's ``task_bounds`` (sigma_policy/zoom.py; ``bounds`` when not given)."""
+        ``proprio_orientation``; both moved by the same augmentation as the cloud)."""
         if not self.config.use_proprio:
             return None
         state = self._take(batch, OBS_STATE, 0, 1).float()
         parts = [state[:, 7:10]]
         rotation = transforms[:, :3, :3].to(state) if transforms is not None else None
         if self.config.proprio_position:
-            site = self._site(batch, 0, transforms) if site is None else site
-            parts.append(world_to_cube(site.to(state), bounds))
+            parts.append(world_to_cube(self._site(batch, 0, transforms).to(state), bounds))
         if self.config.proprio_orientation:
             R = quat_to_matrix(state[:, STATE_QUAT])
             if rotation is not None:
                 R = rotation @ R
             parts.append(R[:, :, :2].transpose(1, 2).flatten(1))  # columns x, y: continuous, sign-free
-        if self.config.zoom_box_m:  # which box the views show: the task box or a zoomed cube, and where
-            parts.append(box_code(bounds, bounds if task_bounds is None else task_bounds).to(state))
         return torch.cat(parts, dim=-1)
 
     def _run_network(
@@ -691,12 +630,9 @@ class SigmaPolicy(PreTrainedPolicy):
         transforms: Tensor | None = None,
         head_heatmap: Tensor | None = None,
         head_uv: Tensor | None = None,
-        site: Tensor | None = None,
     ) -> NetworkOutput:
-        """``site``: the grip site (B, 3, world) the proprio token gets, when not read from ``batch``."""
         tokens, sentence = self._language(tasks)
-        task_bounds = self._bounds(tasks) if self.config.zoom_box_m else None
-        proprio = self._proprio(batch, bounds, transforms, site, task_bounds=task_bounds)
+        proprio = self._proprio(batch, bounds, transforms)
         device = views.device
         autocast = nullcontext()
         if self.config.use_bf16_autocast and device.type == "cuda" and torch.cuda.is_bf16_supported():

@@ -3,8 +3,7 @@
 Shapes (B = batch, V = virtual views, C_in = rendered channels (10), H = W = ``img_size``,
 T = ``img_size // patch_size`` patches per side, D = ``attn_dim``, L = language tokens):
 
-1. ``input_preprocess`` 1x1 conv C_in -> ``im_channels`` on every view (then ``stem_layers`` 3x3 convs, not in the
-   paper) -> ``d0`` (BV, c, H, W) (kept as a skip).
+1. ``input_preprocess`` 1x1 conv C_in -> ``im_channels`` on every view -> ``d0`` (BV, c, H, W) (kept as a skip).
 2. ``patchify`` conv k = stride = ``patch_size`` -> (BV, c, T, T) -> V*T*T tokens + learnable positional encoding
    -> Linear c -> D.
 3. Intra-view encoder (``num_view_layers``): self-attention inside each view (sequence T*T).
@@ -54,7 +53,7 @@ class NetworkConfig:
     """Architecture numbers; the defaults are the paper / released-code configuration (docs/method.md §5, §12)."""
 
     num_views: int = 5
-    in_channels: int = VIEW_CHANNELS  # + 1 with the hand marker (SigmaConfig.hand_marker)
+    in_channels: int = VIEW_CHANNELS
     img_size: int = 220
     patch_size: int = 11
     im_channels: int = 64
@@ -92,10 +91,6 @@ class NetworkConfig:
     # predicted point at inference), so the heads see the object's outline around the keyframe position, e.g. a cube's edges.
     local_channels: int = 0
     local_dilations: tuple[int, ...] = (1, 2, 4, 8)
-    # Convolutional stem (not in the paper, whose input conv is 1x1): ``stem_layers`` 3x3 convolutions after it, so
-    # every pixel of ``d0`` (the patch embedding's input and the decoder's skip) describes its (2n+1)^2 neighbourhood,
-    # e.g. an object's outline and height profile, not only its own colour and position.
-    stem_layers: int = 0
     # Width (pixels) of the Gaussian that pools the local features: in training the target heatmap has it, at
     # inference the same Gaussian sits at the predicted 3D point's projections, so the heads see the same pooling.
     head_pool_sigma: float = 1.5
@@ -121,8 +116,6 @@ class NetworkConfig:
             raise ValueError(f"head_activation must be 'relu' or 'leaky_relu', got {self.head_activation!r}")
         if self.num_queries < 1:
             raise ValueError(f"num_queries must be >= 1, got {self.num_queries}")
-        if self.stem_layers < 0:
-            raise ValueError(f"stem_layers must be >= 0, got {self.stem_layers}")
         tilt_slope(self.side_tilt_deg)  # 0 <= angle < 90
         if self.local_channels < 0 or (self.local_channels and not self.local_dilations):
             raise ValueError("local_channels must be >= 0, with at least one dilation when > 0")
@@ -242,11 +235,6 @@ class SigmaNetwork(nn.Module):
         n_tok = cfg.num_views * t * t
 
         self.input_preprocess = ConvBlock(cfg.in_channels, c, kernel=1)
-        self.stem = (
-            nn.Sequential(*(ConvBlock(c, c, kernel=3) for _ in range(cfg.stem_layers)))
-            if cfg.stem_layers
-            else None
-        )
         self.patchify = ConvBlock(c, c, kernel=cfg.patch_size, stride=cfg.patch_size, norm=True)
         self.pos_encoding = nn.Parameter(torch.randn(1, n_tok, c))
         self.fc_bef_attn = DenseBlock(c, d, act=False)
@@ -319,8 +307,6 @@ class SigmaNetwork(nn.Module):
         if self.cfg.channels_last:
             x = x.contiguous(memory_format=torch.channels_last)
         d0 = self.input_preprocess(x)
-        if self.stem is not None:
-            d0 = self.stem(d0)
         patches = self.patchify(d0)  # (BV, c, T, T)
         c, t = patches.shape[1], patches.shape[-1]
         tokens = patches.reshape(b, v, c, t * t).transpose(2, 3).reshape(b, v * t * t, c)

@@ -23,6 +23,7 @@ from sigma_data.contract import STATE_QUAT
 from sigma_policy.rotation import quat_to_matrix
 
 __all__ = [
+    "PANDA_HAND_BOX",
     "bounds_mask",
     "cube_to_world",
     "depth_to_camera_points",
@@ -95,6 +96,12 @@ def in_frame_box(points: Tensor, origin: Tensor, axes: Tensor, box: Sequence[flo
 def drop_points(points: Tensor, drop: Tensor) -> Tensor:
     """Points ``(B, N, 3)`` with those where ``drop (B, N)`` set to NaN, which :func:`bounds_mask` rejects."""
     return torch.where(drop[..., None], torch.full_like(points, float("nan")), points)
+
+
+# robosuite's Panda in its grip site's frame (z from the palm to the fingertips, x the closing axis): the hand body
+# (22 cm along x, 6.4 cm across, its underside 2.5 cm behind the site) and link 7 (12.4 cm across), from 3 cm
+# behind the site to 1 m behind it. benchmarks/bench_visibility.py counts what the views show without it.
+PANDA_HAND_BOX = (-0.11, -0.065, -1.0, 0.11, 0.065, -0.03)
 
 
 def hand_points(points: Tensor, state: Tensor, box: Sequence[float]) -> Tensor:

@@ -106,6 +106,16 @@ def test_a_finished_run_is_reused_only_with_the_options_it_was_trained_with(tmp_
     newer = TrainRun(**{**run.__dict__, "extra_args": [*run.extra_args, "--policy.first_keyframe_weight=3"]})
     with pytest.raises(ValueError, match=r"--policy\.first_keyframe_weight=1\.0, this run asks for .*=3"):
         newer.reuse_or_clear(record, "suite")
+    # A run trained with an option sigma has since retired is refused by name; one that left it off is reused.
+    saved["policy"] |= {"zoom_box_m": 0.0, "hand_marker": False}
+    (run.checkpoint / "train_config.json").write_text(json.dumps(saved))
+    assert run.reuse_or_clear(record, "suite") == {"seconds": 60.0}
+    saved["policy"]["zoom_box_m"] = 0.5
+    (run.checkpoint / "train_config.json").write_text(json.dumps(saved))
+    with pytest.raises(
+        ValueError, match=r"train_config\.json: policy\.zoom_box_m=0\.5 is an option sigma tried"
+    ):
+        run.reuse_or_clear(record, "suite")
     assert run.checkpoint.is_dir()  # nothing cleared
 
 

@@ -17,9 +17,7 @@ from sigma_policy.configuration_sigma import SigmaConfig
 from sigma_policy.heatmap import heatmap_to_cube_point
 from sigma_policy.modeling_sigma import SigmaPolicy
 from sigma_policy.pointcloud import cube_to_world, world_to_cube
-from sigma_policy.rotation import quat_to_matrix
 from sigma_policy.test_time import transform_points
-from sigma_policy.zoom import box_code, box_side
 from tests.sigma_policy.tiny_dataset import BOUNDS, write_tiny_keyframe_dataset
 
 FAST = {"preset": "small", "img_size": 32, "patch_size": 8, "attn_dim": 64, "attn_heads": 2}
@@ -164,13 +162,13 @@ def test_yaw_ensemble_turns_the_cloud_and_the_hand_and_turns_each_prediction_bac
     rendered, proprios, points, turns = [], [], [], []
     render, proprio, run_network = policy._render, policy._proprio, policy._run_network
 
-    def spy_render(points, colors, bounds, hand=None):
+    def spy_render(points, colors, bounds):
         rendered.append(points)
-        return render(points, colors, bounds, hand)
+        return render(points, colors, bounds)
 
-    def spy_proprio(batch, bounds, transforms, site=None, **kwargs):
+    def spy_proprio(batch, bounds, transforms):
         turns.append(transforms)
-        proprios.append(proprio(batch, bounds, transforms, site, **kwargs))
+        proprios.append(proprio(batch, bounds, transforms))
         return proprios[-1]
 
     def spy_network(views, tasks, batch, bounds, transforms=None, **kwargs):
@@ -413,20 +411,18 @@ def test_scene_box_comes_from_the_dataset_sidecar_when_unset(tmp_path):
     assert bare.scene_bounds == DEFAULT_SCENE_BOUNDS
 
 
-@pytest.mark.parametrize("zoom", [{}, {"zoom_box_m": 0.45, "zoom_share": 0.999, "zoom_jitter_m": 0.03}])
-def test_augmented_target_lands_on_the_augmented_cube_inside_forward(tiny_root, monkeypatch, zoom):
+def test_augmented_target_lands_on_the_augmented_cube_inside_forward(tiny_root, monkeypatch):
     """Augmentation, render and target composed as ``SigmaPolicy.forward`` composes them: under a random yaw and
     shift, the heatmap target of every start frame (the pre-grasp pose, straight above the cube centre) lies on
-    the red cube in the rendered top view; with the zoom, in the zoomed cube's view. (Targets left unshifted while
-    the cloud moves, or projected in the task box while the views show the zoomed cube, fail this test.)"""
+    the red cube in the rendered top view. (Targets left unshifted while the cloud moves fail this test.)"""
     import sigma_policy.modeling_sigma as modeling
 
     captured = {}
     render = SigmaPolicy._render
     heatmaps = modeling.gaussian_heatmaps
 
-    def keep_views(self, points, colors, bounds, hand=None):
-        captured.setdefault("views", render(self, points, colors, bounds, hand))
+    def keep_views(self, points, colors, bounds):
+        captured.setdefault("views", render(self, points, colors, bounds))
         return captured["views"]
 
     def keep_uv(uv, *args, **kwargs):
@@ -441,7 +437,6 @@ def test_augmented_target_lands_on_the_augmented_cube_inside_forward(tiny_root, 
         aug_translation_range=0.1,
         aug_yaw_range_deg=45.0,
         use_contrastive=False,
-        **zoom,
     )
     idx = sample_indices(ds)
     torch.manual_seed(3)
@@ -685,216 +680,18 @@ def test_tilted_side_views_render_target_and_predict_in_one_geometry(tiny_root, 
     assert action.shape == (1, 9) and torch.isfinite(action).all()
 
 
-def test_hand_mask_drops_the_points_at_each_frames_own_grip_site(tiny_root):
-    """With ``hand_mask_box`` the current and the goal frame's clouds each lose exactly the points inside the box
-    around that frame's own grip site (``observation.state``), in training and at inference alike."""
-    box = [-0.15, -0.15, -0.15, 0.15, 0.15, 0.15]
-    _, plain, pre, _, ds = build(tiny_root)
-    _, masked, *_ = build(tiny_root, hand_mask_box=box)
-    batch = pre(training_batch(ds, [0, 1, 2]))
-    state = batch["observation.state"].float()
-    assert not torch.allclose(state[:, 0, :3], state[:, 1, :3])  # the goal frame's hand is elsewhere
-    for t in (0, 1):
-        full, kept = plain._cloud(batch, t).points, masked._cloud(batch, t).points
-        local = torch.einsum("bnj,bji->bni", full - state[:, t, None, :3], quat_to_matrix(state[:, t, 3:7]))
-        inside = (local.abs() <= 0.15).all(-1)
-        assert inside.any() and (~inside & torch.isfinite(full).all(-1)).any()
-        assert torch.isnan(kept[inside]).all()
-        torch.testing.assert_close(kept[~inside], full[~inside], equal_nan=True)
-    obs = pre(single_observation(tiny_root, 1))
-    assert torch.isnan(masked.input_cloud(obs)[0]).sum() > torch.isnan(plain.input_cloud(obs)[0]).sum()
-    with pytest.raises(ValueError, match="hand_mask_box"):
-        SigmaConfig(hand_mask_box=[0.1, 0.1, 0.1, 0.0, 0.2, 0.2])
-
-
-def test_hand_mask_views_top_drops_the_hand_from_the_top_view_only(tiny_root):
-    """``hand_mask_views="top"``: the top view is the one rendered without the hand, the side views the ones
-    rendered with it."""
-    box = [-0.15, -0.15, -0.15, 0.15, 0.15, 0.15]
-    _, plain, pre, _, ds = build(tiny_root)
-    _, every, *_ = build(tiny_root, hand_mask_box=box)
-    _, top, *_ = build(tiny_root, hand_mask_box=box, hand_mask_views="top")
-    batch = pre(training_batch(ds, [0, 1]))
-    bounds = plain._bounds(plain._tasks(batch, 2))
-    rendered = {}
-    for name, policy in (("plain", plain), ("every", every), ("top", top)):
-        cloud = policy._cloud(batch, t=0)
-        rendered[name] = policy._render(cloud.points, cloud.colors, bounds, cloud.hand).clone()
-    assert top._cloud(batch, t=0).hand.any()
-    assert not torch.equal(rendered["every"][:, 0], rendered["plain"][:, 0])
-    torch.testing.assert_close(rendered["top"][:, 0], rendered["every"][:, 0])
-    torch.testing.assert_close(rendered["top"][:, 1:], rendered["plain"][:, 1:])
-    with pytest.raises(ValueError, match="hand_mask_views"):
-        SigmaConfig(hand_mask_views="side")
-
-
-def test_hand_marker_peaks_at_each_frames_augmented_grip_site(tiny_root, monkeypatch):
-    """``hand_marker``: every view gets an 11th channel whose peak (1 at the centre) is the pixel of the frame's
-    own grip site, moved by that frame's augmentation (current and goal views), and at inference by none; the
-    network's first layer takes 11 channels."""
-    import sigma_policy.modeling_sigma as modeling
-
-    captured = {}
-    augment = modeling.se3_augment
-
-    def keep_augmented(points, pos, *args, **kwargs):
-        out = augment(points, pos, *args, **kwargs)
-        captured.setdefault("augmented", []).append(out)
-        return out
-
-    monkeypatch.setattr(modeling, "se3_augment", keep_augmented)
-    _, policy, pre, _, ds = build(
-        tiny_root, hand_marker=True, aug_translation_range=0.1, aug_yaw_range_deg=45.0
-    )
-    assert policy.network.cfg.in_channels == 11
-    seen = {}
-    hook = policy.network.register_forward_hook(
-        lambda _m, args, kwargs, _out: seen.update(views=args[0], goal=kwargs["goal_images"]),
-        with_kwargs=True,
-    )
-    batch = pre(training_batch(ds, [0, 1, 2]))
-    torch.manual_seed(5)
-    policy.forward(batch)
-    state = batch["observation.state"].float()
-    bounds = policy._bounds(policy._tasks(batch, 3))
-    (_, _, _, transforms), (_, goal_site, _, _) = captured["augmented"]
-    site = torch.einsum("bij,bj->bi", transforms[:, :3, :3], state[:, 0, :3]) + transforms[:, :3, 3]
-    assert not torch.allclose(site, state[:, 0, :3])  # the augmentation moved it
-    for views, where in ((seen["views"], site), (seen["goal"], goal_site)):
-        assert views.shape[2] == 11
-        uv = policy.renderer.project(world_to_cube(where[:, None], bounds))[:, 0]  # (B, V, 2)
-        marker = views[:, :, 10]
-        size = marker.shape[-1]
-        inside = ((uv >= 0) & (uv < size)).all(-1)
-        assert inside.any()
-        peak = marker.flatten(2).argmax(-1)
-        expected = uv[..., 1].floor().long() * size + uv[..., 0].floor().long()
-        assert torch.equal(peak[inside], expected[inside])
-        assert (marker.amax((-2, -1))[inside] > 0.75).all() and marker.max() <= 1.0
-    policy.eval()
-    obs = pre(single_observation(tiny_root, 1))
-    prediction = policy.predict(obs)
-    uv = policy.renderer.project(
-        world_to_cube(obs["observation.state"][:, None, :3].float(), prediction.bounds)
-    )
-    marker = prediction.views[0, :, 10]
-    col, row = uv[0, 0, :, 0].floor().long(), uv[0, 0, :, 1].floor().long()
-    assert torch.equal(marker.flatten(1).argmax(-1), row * marker.shape[-1] + col)
-    hook.remove()
-
-
-def test_hand_site_noise_moves_the_marker_and_the_proprio_position_together_and_not_the_target(
-    tiny_root, monkeypatch
-):
-    """``hand_site_noise_m``: in training the hand marker and the proprio token get the same grip site, off the
-    real one by at most the noise in x and y and not at all in z."""
-    captured = {}
-    mark, proprio = SigmaPolicy._mark_hand, SigmaPolicy._proprio
-
-    def keep_marked(self, views, site, bounds):
-        captured.setdefault("marked", site)
-        return mark(self, views, site, bounds)
-
-    def keep_proprio(self, batch, bounds, transforms, site=None, **kwargs):
-        captured["proprio"], captured["transforms"] = site, transforms
-        return proprio(self, batch, bounds, transforms, site, **kwargs)
-
-    monkeypatch.setattr(SigmaPolicy, "_mark_hand", keep_marked)
-    monkeypatch.setattr(SigmaPolicy, "_proprio", keep_proprio)
-    _, policy, pre, _, ds = build(tiny_root, hand_marker=True, hand_site_noise_m=0.05, use_contrastive=False)
-    batch = pre(training_batch(ds, [0, 1, 2, 3]))
-    policy.forward(batch)
-    site = policy._site(batch, 0, captured["transforms"])
-    offset = captured["marked"] - site
-    assert captured["proprio"] is captured["marked"]
-    assert (offset[:, :2].abs() <= 0.05 + 1e-6).all() and offset[:, :2].abs().max() > 0.005
-    torch.testing.assert_close(offset[:, 2], torch.zeros(4))
-    with pytest.raises(ValueError, match="hand_site_noise_m"):
-        SigmaConfig(hand_site_noise_m=-0.01)
-
-
 def test_inference_reads_no_state_when_nothing_uses_it(tiny_root):
-    """Without the proprio token, the hand mask and the hand marker, ``observation.state`` is not read at inference
-    (RVT's inputs: the cameras and the instruction); with the marker it is, and its absence is named."""
+    """Without the proprio token ``observation.state`` is not read at inference (RVT's inputs: the cameras and the
+    instruction); with it, it is, and its absence is named."""
     obs = single_observation(tiny_root, 1)
     del obs["observation.state"]
     _, plain, pre, _, _ = build(tiny_root, use_proprio=False)
     plain.eval()
     assert torch.isfinite(plain.select_action(pre(dict(obs)))).all()
-    _, marked, *_ = build(tiny_root, use_proprio=False, hand_marker=True)
-    marked.eval()
+    _, proprio, *_ = build(tiny_root, use_proprio=True)
+    proprio.eval()
     with pytest.raises(KeyError, match=r"observation\.state"):
-        marked.select_action(pre(dict(obs)))
-
-
-def test_zoom_second_stage_renders_a_cube_around_the_first_point_and_acts_from_it(tiny_root):
-    """``zoom_box_m``: a second pass renders a cube of that side centred on the first pass's point, its proprio token
-    reads the box's side and centre, and the action and the returned views, heatmaps and box are the second pass's."""
-    cfg, policy, pre, _, _ = build(tiny_root, zoom_box_m=0.2)
-    assert cfg.zoom_box_m < BOUNDS[3] - BOUNDS[0]
-    policy.eval()
-    obs = pre(single_observation(tiny_root, 1))
-    boxes, proprios, points = [], [], []
-    proprio, run_network = policy._proprio, policy._run_network
-
-    def spy_proprio(batch, bounds, transforms, site=None, **kwargs):
-        proprios.append(proprio(batch, bounds, transforms, site, **kwargs))
-        return proprios[-1]
-
-    def spy_network(views, tasks, batch, bounds, **kwargs):
-        out = run_network(views, tasks, batch, bounds, **kwargs)
-        boxes.append(bounds)
-        cube = heatmap_to_cube_point(out.trans.float(), cfg.img_size, refine_px=cfg.heatmap_refine_px)
-        points.append(cube_to_world(cube, bounds))
-        return out
-
-    policy._proprio, policy._run_network = spy_proprio, spy_network
-    pred = policy.predict(obs)
-    assert len(boxes) == 2
-    torch.testing.assert_close(boxes[0], torch.tensor([BOUNDS]))
-    torch.testing.assert_close(boxes[1], torch.cat([points[0] - 0.1, points[0] + 0.1], -1))
-    torch.testing.assert_close(pred.bounds, boxes[1])
-    torch.testing.assert_close(pred.action[:, :3], points[1])
-    # the proprio token ends with the box's side and its centre in the task box (0 for the task box itself)
-    task = torch.tensor([BOUNDS])
-    torch.testing.assert_close(proprios[0][:, -4:], box_code(task, task))
-    torch.testing.assert_close(proprios[1][:, -4:], box_code(boxes[1], task))
-    assert proprios[1][0, -4].item() == pytest.approx(0.2)
-    torch.testing.assert_close(proprio(obs, task, None)[:, -4:], box_code(task, task))  # no task box: its own
-    assert pred.views.shape[-1] == cfg.img_size
-    # zoom_at_inference=False (sigma-eval --zoom_at_inference false): the same weights, the first pass alone
-    policy.config.zoom_at_inference = False
-    boxes.clear()
-    first = policy.predict(obs)
-    assert len(boxes) == 1
-    torch.testing.assert_close(first.action[:, :3], points[0])
-
-
-def test_zoom_trains_on_both_scales_and_saves_and_reloads(tiny_root, tmp_path):
-    """In training about ``zoom_share`` of the samples are rendered in the zoomed cube; the checkpoint, whose
-    proprio token is four wider, loads back with the zoom on."""
-    _, policy, pre, _, ds = build(tiny_root, zoom_box_m=0.25, zoom_share=0.5, use_contrastive=False)
-    seen = []
-    render = policy._render
-
-    def spy_render(points, colors, bounds, hand=None):
-        seen.append(bounds)
-        return render(points, colors, bounds, hand)
-
-    policy._render = spy_render
-    torch.manual_seed(0)
-    loss, _ = policy.forward(pre(training_batch(ds, list(range(8)))))
-    loss.backward()
-    sides = box_side(seen[0])[:, 0]
-    zoomed = (sides - 0.25).abs() < 1e-6
-    assert 0 < int(zoomed.sum()) < 8
-    torch.testing.assert_close(sides[~zoomed], torch.full_like(sides[~zoomed], BOUNDS[3] - BOUNDS[0]))
-    policy.save_pretrained(tmp_path)
-    again = SigmaPolicy.from_pretrained(tmp_path)
-    assert again.config.zoom_box_m == 0.25
-    torch.testing.assert_close(
-        again.network.proprio_preprocess.linear.weight, policy.network.proprio_preprocess.linear.weight
-    )
+        proprio.select_action(pre(dict(obs)))
 
 
 def test_instruction_contrast_asks_the_tasks_other_instructions_and_runs_the_heads_at_the_contrasted_point(
@@ -934,3 +731,36 @@ def test_instruction_contrast_asks_the_tasks_other_instructions_and_runs_the_hea
     calls.clear()
     policy.predict(obs)
     assert [c[0] for c in calls] == [[own]]
+
+
+def test_checkpoint_saved_with_retired_options_off_loads_and_acts_as_saved(tiny_root, tmp_path):
+    """A checkpoint saved while the retired options existed names them all in config.json, off: it loads and
+    acts as it did. One saved with a retired option on is refused, naming the file and the option
+    (sigma_policy/retired.py)."""
+    import json
+
+    from sigma_policy.retired import RetiredOptionError
+
+    _, policy, pre, _, _ = build(tiny_root)
+    policy.eval()
+    obs = single_observation(tiny_root, 4)
+    before = policy.select_action(pre(dict(obs)))
+    policy.save_pretrained(tmp_path)
+    config = json.loads((tmp_path / "config.json").read_text())
+    old = {  # as config.json held them until they were retired
+        "stem_layers": 0,
+        "hand_mask_box": None,
+        "hand_mask_views": "all",
+        "hand_marker": False,
+        "hand_site_noise_m": 0.0,
+        "zoom_box_m": 0.0,
+        "zoom_share": 0.5,
+        "zoom_jitter_m": 0.05,
+        "zoom_at_inference": True,
+    }
+    (tmp_path / "config.json").write_text(json.dumps(config | old))
+    loaded = SigmaPolicy.from_pretrained(tmp_path)
+    torch.testing.assert_close(loaded.select_action(pre(dict(obs))), before)
+    (tmp_path / "config.json").write_text(json.dumps(config | old | {"zoom_box_m": 0.5}))
+    with pytest.raises(RetiredOptionError, match=rf"{tmp_path / 'config.json'}: policy\.zoom_box_m=0\.5"):
+        SigmaPolicy.from_pretrained(tmp_path)

@@ -7,8 +7,8 @@ import numpy as np
 import pytest
 import torch
 
-from sigma_policy.configuration_sigma import PANDA_HAND_BOX
 from sigma_policy.pointcloud import (
+    PANDA_HAND_BOX,
     bounds_mask,
     cube_to_world,
     depth_to_camera_points,
