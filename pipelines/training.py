@@ -90,9 +90,9 @@ class TrainRun:
         saved = json.loads(train_config.read_text())
         policy = saved.get("policy", {})
         if self.policy_type == "sigma":
-            from sigma_policy.retired import drop_retired
+            from sigma_policy.compat import drop_retired
 
-            # a run trained with an option sigma has since removed is refused, naming it (sigma_policy/retired.py)
+            # a run trained with an option sigma has since removed is refused, naming it (sigma_policy/compat.py)
             policy = _introduced_values() | drop_retired(policy, str(train_config))
         arguments = self.arguments()
         for arg in arguments:

@@ -123,10 +123,10 @@ from sigma_data.contract import (  # the data contract: the only sigma_data modu
     recorded_instruction_tasks,
     rgb_key,
 )
+from sigma_policy.compat import drop_retired
 from sigma_policy.instruction_contrast import check_contrast_weight
 from sigma_policy.lamb import LambConfig
 from sigma_policy.network import NetworkConfig
-from sigma_policy.retired import drop_retired
 from sigma_policy.test_time import check_yaw_angles
 
 PRESETS: dict[str, dict[str, Any]] = {
@@ -396,7 +396,7 @@ class SigmaConfig(PreTrainedConfig):
     @classmethod
     def from_pretrained(cls, pretrained_name_or_path: str | Path, **kwargs: Any) -> SigmaConfig:
         """LeRobot's reader of a saved ``config.json``, after taking out the options sigma has retired
-        (sigma_policy/retired.py): a checkpoint saved before an option was removed loads if it left that option
+        (sigma_policy/compat.py): a checkpoint saved before an option was removed loads if it left that option
         off, and is refused, naming the file and the option, if it did not."""
         config_file = Path(pretrained_name_or_path) / CONFIG_NAME
         if not config_file.is_file():  # a hub id, or no config: LeRobot's own reader says what is wrong

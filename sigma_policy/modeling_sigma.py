@@ -38,6 +38,7 @@ from torch import Tensor
 from sigma_data.contract import STATE_QUAT, TIMESTAMP
 from sigma_policy import lerobot_patches
 from sigma_policy.augmentation import se3_augment
+from sigma_policy.compat import match_saved_modules
 from sigma_policy.configuration_sigma import SigmaConfig
 from sigma_policy.contrastive import contrastive_losses, instruction_ids
 from sigma_policy.heatmap import gaussian_heatmaps, heatmap_to_cube_point
@@ -137,62 +138,19 @@ class SigmaPolicy(PreTrainedPolicy):
     @classmethod
     def from_pretrained(cls, pretrained_name_or_path: Any, *, config: SigmaConfig | None = None, **kwargs):
         """LeRobot's loader, with the config read by :meth:`SigmaConfig.from_pretrained` (which takes out the
-        options sigma has retired, sigma_policy/retired.py) when none is given."""
+        options sigma has retired, sigma_policy/compat.py) when none is given."""
         if config is None and Path(pretrained_name_or_path).is_dir():
             config = SigmaConfig.from_pretrained(pretrained_name_or_path)
         return super().from_pretrained(pretrained_name_or_path, config=config, **kwargs)
 
     @classmethod
     def _load_as_safetensor(cls, model, model_file: str, map_location: str, strict: bool):
-        """LeRobot's loader, after matching the network to what the file holds. A checkpoint saved before a
-        module existed (``lang_film``, ``local_channels``, the proprio token's position and orientation, the proprio
-        input of the heads) has no
-        config field for it, so its config resolves it from today's preset; loading it into a network with that
-        module would leave the module randomly initialised (LeRobot loads non-strictly). Such fields are turned
-        off (with a warning) and the network rebuilt to the saved shapes."""
-        from safetensors import safe_open
-
-        log = logging.getLogger(__name__)
-        with safe_open(model_file, "pt") as f:
-            names = set(f.keys())  # a safe_open handle is not iterable
-
-            def width(key: str) -> int | None:
-                return f.get_slice(key).get_shape()[1] if key in names else None
-
-            saved_proprio = width("network.proprio_preprocess.linear.weight")
-            saved_head = width("network.feat_fc.0.weight")
-        cfg = model.config
-        if cfg.lang_film and not any(k.startswith("network.lang_film.") for k in names):
-            log.warning(
-                "%s has no instruction-FiLM weights (saved before policy.lang_film existed)", model_file
-            )
-            cfg.lang_film = False
-        if cfg.local_channels and not any(k.startswith("network.local_encoder.") for k in names):
-            log.warning(
-                "%s has no local head features (saved before policy.local_channels existed)", model_file
-            )
-            cfg.local_channels = 0
-        if saved_proprio is not None and saved_proprio < cfg.network_config().proprio_dim:
-            log.warning(
-                "%s has a %d-D proprio token (saved before policy.proprio_position/proprio_orientation existed)%s",
-                model_file,
-                saved_proprio,
-                ": a gripper-only proprio token" if saved_proprio == 3 else "",
-            )
-            cfg.proprio_position = saved_proprio >= 6
-            cfg.proprio_orientation = False
-        if cfg.proprio_in_heads and saved_head is not None:
-            net = cfg.network_config()
-            without = net.num_views * (net.im_channels + net.final_dim + net.local_channels)
-            if saved_head == without:
-                log.warning(
-                    "%s has heads without the proprio input (saved before policy.proprio_in_heads)",
-                    model_file,
-                )
-                cfg.proprio_in_heads = False
-        if model.network.cfg != cfg.network_config():
+        """LeRobot's loader, after rebuilding the network without the modules the file was saved before
+        (sigma_policy/compat.py, "Added modules")."""
+        match_saved_modules(model.config, model_file)
+        if model.network.cfg != model.config.network_config():
             model.network = SigmaNetwork(
-                cfg.network_config(),
+                model.config.network_config(),
                 model.text_encoder.token_dim,
                 model.text_encoder.sentence_dim,
                 model.text_encoder.max_length,

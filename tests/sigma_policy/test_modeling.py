@@ -736,10 +736,10 @@ def test_instruction_contrast_asks_the_tasks_other_instructions_and_runs_the_hea
 def test_checkpoint_saved_with_retired_options_off_loads_and_acts_as_saved(tiny_root, tmp_path):
     """A checkpoint saved while the retired options existed names them all in config.json, off: it loads and
     acts as it did. One saved with a retired option on is refused, naming the file and the option
-    (sigma_policy/retired.py)."""
+    (sigma_policy/compat.py)."""
     import json
 
-    from sigma_policy.retired import RetiredOptionError
+    from sigma_policy.compat import RetiredOptionError
 
     _, policy, pre, _, _ = build(tiny_root)
     policy.eval()

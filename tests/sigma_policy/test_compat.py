@@ -1,5 +1,6 @@
-"""``sigma_policy.retired``: options sigma removed are dropped from a saved config that left them off and refused,
-naming the file, the field and the docs section, where it did not."""
+"""``sigma_policy.compat``: options sigma removed are dropped from a saved config that left them off and refused,
+naming the file, the field and the docs section, where it did not. (Checkpoints saved before a module existed:
+tests/sigma_policy/test_modeling.py, the ``saved_before``/``saved_without`` tests.)"""
 
 from __future__ import annotations
 
@@ -9,8 +10,8 @@ from pathlib import Path
 
 import pytest
 
+from sigma_policy.compat import RETIRED, RetiredOptionError, drop_retired
 from sigma_policy.configuration_sigma import SigmaConfig
-from sigma_policy.retired import RETIRED, RetiredOptionError, drop_retired
 
 ROOT = Path(__file__).resolve().parents[2]
 
