@@ -1,9 +1,9 @@
 """Reading checkpoints that earlier versions of sigma saved: options since removed, and modules since added.
 
-**Removed options.** Each recipe experiment that did not help is written up in docs/learning.md, with its command and numbers, and its
-option is then removed, so that :class:`~sigma_policy.configuration_sigma.SigmaConfig` lists only what a user may
-want to set. A checkpoint saved while such an option existed still names it in its ``config.json`` (every field is
-saved, set or not). :func:`drop_retired` reads such a config:
+**Removed options.** Each recipe experiment that did not help is written up in docs/learning.md, with its command
+and numbers, and its option is then removed, so that :class:`~sigma_policy.configuration_sigma.SigmaConfig` lists
+only what a user may want to set. A checkpoint saved while such an option existed still names it in its
+``config.json`` (every field is saved, set or not). :func:`drop_retired` reads such a config:
 
 * a retired field at the value that meant "off" is dropped: the checkpoint was trained as today's code trains it;
 * a retired field at any other value is refused, with the field, its value and the docs/learning.md section that
