@@ -9,30 +9,50 @@
   the model's outputs at [PAD] positions), ``sentence`` = attention-masked mean of the token states, L2-normalised,
   exactly what ``SentenceTransformer.encode`` returns for this model (instructions longer than ``max_length``
   tokens are truncated).
+
+- :class:`TextFeatureTable`: no model at all. The policy only ever needs the features of the instructions it is
+  trained or evaluated on; :func:`save_text_features` (or ``sigma-encode``) writes them, exactly as the encoder
+  returns them (float32), to one safetensors file, with the encoder that made them (``minilm:<SHA-256 of its
+  weights>`` or ``clip:<name or path as given>``) and its ``max_length``. When the environment variable
+  ``SIGMA_TEXT_FEATURES`` names such a file, :func:`make_text_encoder` serves the features from it instead of
+  loading the model, so a machine without the encoder's weights (a robot's computer, a GPU machine with no network,
+  where the 88 MB MiniLM package is the largest thing to carry) trains and evaluates the same policy. A table of
+  another encoder, or an instruction it does not hold, is refused with an error naming the file; unset, the
+  encoder runs as before.
 """
 
 from __future__ import annotations
 
 import hashlib
 import importlib.util
+import json
+import os
 from collections.abc import Iterator
 from contextlib import contextmanager
 from dataclasses import dataclass
 from pathlib import Path
 
 import torch
+from safetensors import safe_open
+from safetensors.torch import load_file, save_file
 from torch import Tensor, nn
 
 __all__ = [
     "MINILM_SHA256",
+    "TEXT_FEATURES_ENV",
     "CLIPTextEncoder",
     "MiniLMTextEncoder",
     "TextEncoder",
+    "TextFeatureTable",
     "TextFeatures",
     "make_text_encoder",
     "minilm_model_dir",
+    "save_text_features",
 ]
 
+# Names a feature table (:class:`TextFeatureTable`) to read instructions from instead of running the encoder.
+TEXT_FEATURES_ENV = "SIGMA_TEXT_FEATURES"
+TABLE_FORMAT = "sigma-text-features/1"
 MINILM_SHA256 = "53aa51172d142c89d9012cce15ae4d6cc0ca6895895114379cacb4fab128d9db"
 
 
@@ -50,6 +70,7 @@ class TextEncoder(nn.Module):
     token_dim: int
     sentence_dim: int
     max_length: int
+    identity: str  # which encoder and weights: what a feature table records (:class:`TextFeatureTable`)
 
     def __init__(self) -> None:
         super().__init__()
@@ -116,6 +137,7 @@ class CLIPTextEncoder(TextEncoder):
             raise OSError(f"cannot load a CLIP text model and tokenizer from '{name_or_path}': {e}") from e
         self.max_length = max_length
         self.token_dim = self.sentence_dim = self.model.config.hidden_size
+        self.identity = clip_identity(name_or_path)
         self._freeze()
 
     def _encode_uncached(self, instructions: list[str]) -> TextFeatures:
@@ -190,6 +212,7 @@ class MiniLMTextEncoder(TextEncoder):
             self.model = BertModel.from_pretrained(path, add_pooling_layer=False)
         self.max_length = max_length
         self.token_dim = self.sentence_dim = self.model.config.hidden_size
+        self.identity = minilm_identity(expected_sha256)
         self._freeze()
 
     def _encode_uncached(self, instructions: list[str]) -> TextFeatures:
@@ -200,13 +223,103 @@ class MiniLMTextEncoder(TextEncoder):
         return TextFeatures(tokens=hidden, sentence=nn.functional.normalize(mean, dim=-1))
 
 
-def make_text_encoder(kind: str = "minilm", name_or_path: str | None = None) -> TextEncoder:
+def save_text_features(encoder: TextEncoder, instructions: list[str], path: str | Path) -> Path:
+    """Encode ``instructions`` (duplicates once) with ``encoder`` and write the table to ``path`` (written to a
+    temporary name and renamed, so a killed run leaves no file that looks complete)."""
+    unique = list(dict.fromkeys(instructions))
+    if not unique:
+        raise ValueError("save_text_features needs at least one instruction")
+    feats = encoder.encode(unique)
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    meta = {
+        "format": TABLE_FORMAT,
+        "encoder": encoder.identity,
+        "max_length": str(encoder.max_length),
+        "instructions": json.dumps(unique),
+    }
+    tensors = {"tokens": feats.tokens.float().contiguous(), "sentence": feats.sentence.float().contiguous()}
+    tmp = path.with_name(path.name + ".tmp")
+    save_file(tensors, tmp, metadata=meta)
+    os.replace(tmp, path)
+    return path
+
+
+class TextFeatureTable(TextEncoder):
+    """A :class:`TextEncoder` that looks instructions up in a table written by
+    :func:`save_text_features`. ``expected_encoder``, when given, must be the table's ``encoder``."""
+
+    def __init__(self, path: str | Path, expected_encoder: str | None = None) -> None:
+        super().__init__()
+        self.path = Path(path)
+        if not self.path.is_file():
+            raise FileNotFoundError(f"{TEXT_FEATURES_ENV}={self.path}: no such file")
+        try:
+            tensors = load_file(self.path)
+            with safe_open(self.path, "pt") as f:
+                meta = f.metadata() or {}
+        except Exception as e:  # a truncated or foreign file: say which
+            raise ValueError(f"{self.path}: not a readable text-feature table ({e})") from e
+        if meta.get("format") != TABLE_FORMAT or {"tokens", "sentence"} - tensors.keys():
+            raise ValueError(
+                f"{self.path}: not a sigma text-feature table (format {meta.get('format')!r}, tensors "
+                f"{sorted(tensors)}); write one with sigma-encode"
+            )
+        self.identity = meta["encoder"]
+        if expected_encoder is not None and self.identity != expected_encoder:
+            raise ValueError(
+                f"{self.path}: features of the encoder {self.identity!r}, but the policy reads instructions with "
+                f"{expected_encoder!r}; write the table with that encoder (sigma-encode) or unset {TEXT_FEATURES_ENV}"
+            )
+        instructions = json.loads(meta["instructions"])
+        tokens, sentence = tensors["tokens"], tensors["sentence"]
+        n = len(instructions)
+        if tokens.ndim != 3 or sentence.ndim != 2 or tokens.shape[0] != n or sentence.shape[0] != n:
+            raise ValueError(
+                f"{self.path}: {n} instructions but tokens {tuple(tokens.shape)} and sentence "
+                f"{tuple(sentence.shape)}"
+            )
+        if not (torch.isfinite(tokens).all() and torch.isfinite(sentence).all()):
+            raise ValueError(f"{self.path}: the features hold NaN or infinite values")
+        self.max_length = int(meta["max_length"])
+        if tokens.shape[1] != self.max_length:
+            raise ValueError(f"{self.path}: max_length {self.max_length} but tokens {tuple(tokens.shape)}")
+        self.token_dim, self.sentence_dim = tokens.shape[2], sentence.shape[1]
+        self._cache = {s: (tokens[i], sentence[i]) for i, s in enumerate(instructions)}
+
+    def _encode_uncached(self, instructions: list[str]) -> TextFeatures:
+        known = ", ".join(repr(s) for s in self._cache)
+        raise KeyError(
+            f"{self.path}: no features for the instruction(s) {instructions}; the table holds {known}. Write a "
+            f"table that holds them (sigma-encode --instructions ...) or unset {TEXT_FEATURES_ENV} to run the encoder"
+        )
+
+
+def minilm_identity(sha256: str = MINILM_SHA256) -> str:
+    """What a feature table records for MiniLM: the SHA-256 of the weights it was computed with."""
+    return f"minilm:{sha256}"
+
+
+def clip_identity(name_or_path: str) -> str:
+    """What a feature table records for CLIP: the hub id or path it was loaded from, as given."""
+    return f"clip:{name_or_path}"
+
+
+def make_text_encoder(
+    kind: str = "minilm", name_or_path: str | None = None, allow_table: bool = True
+) -> TextEncoder:
     """``"minilm"`` (offline default; ``name_or_path`` optionally a local copy) or ``"clip"`` (``name_or_path``
-    required: local directory or hub id)."""
+    required: local directory or hub id). When the environment variable ``SIGMA_TEXT_FEATURES`` names a feature
+    table of that encoder (and ``allow_table``), the features come from the table and the model is not loaded
+    (:class:`TextFeatureTable`)."""
+    if kind not in ("minilm", "clip"):
+        raise ValueError(f"unknown text encoder kind {kind!r}; expected 'minilm' or 'clip'")
+    if kind == "clip" and not name_or_path:
+        raise ValueError("text encoder 'clip' needs name_or_path (a local CLIP directory or hub id)")
+    table = os.environ.get(TEXT_FEATURES_ENV)
+    if table and allow_table:
+        expected = minilm_identity() if kind == "minilm" else clip_identity(str(name_or_path))
+        return TextFeatureTable(table, expected_encoder=expected)
     if kind == "minilm":
         return MiniLMTextEncoder(name_or_path)
-    if kind == "clip":
-        if not name_or_path:
-            raise ValueError("text encoder 'clip' needs name_or_path (a local CLIP directory or hub id)")
-        return CLIPTextEncoder(name_or_path)
-    raise ValueError(f"unknown text encoder kind {kind!r}; expected 'minilm' or 'clip'")
+    return CLIPTextEncoder(str(name_or_path))

@@ -764,3 +764,29 @@ def test_checkpoint_saved_with_retired_options_off_loads_and_acts_as_saved(tiny_
     (tmp_path / "config.json").write_text(json.dumps(config | old | {"zoom_box_m": 0.5}))
     with pytest.raises(RetiredOptionError, match=rf"{tmp_path / 'config.json'}: policy\.zoom_box_m=0\.5"):
         SigmaPolicy.from_pretrained(tmp_path)
+
+
+def test_policy_reads_instructions_from_a_feature_table_and_acts_the_same(tiny_root, tmp_path, monkeypatch):
+    """With SIGMA_TEXT_FEATURES naming a table of its encoder (written from the dataset's tasks, as
+    ``sigma-encode --dataset_root`` does), a saved policy loads without the encoder and acts exactly as before; an
+    instruction the table lacks is refused by name (sigma_policy/text_encoder.py)."""
+    from pipelines.encode import dataset_instructions
+    from sigma_policy.text_encoder import TEXT_FEATURES_ENV, TextFeatureTable, save_text_features
+
+    _, policy, pre, _, _ = build(tiny_root)
+    policy.eval()
+    obs = single_observation(tiny_root, 4)
+    before = policy.select_action(pre(dict(obs)))
+    policy.save_pretrained(tmp_path / "ckpt")
+    table = save_text_features(
+        policy.text_encoder, dataset_instructions(tiny_root), tmp_path / "f.safetensors"
+    )
+    monkeypatch.setenv(TEXT_FEATURES_ENV, str(table))
+    loaded = SigmaPolicy.from_pretrained(tmp_path / "ckpt")
+    assert isinstance(loaded.text_encoder, TextFeatureTable)
+    torch.testing.assert_close(loaded.select_action(pre(dict(obs))), before, rtol=0, atol=0)
+    loaded.reset()
+    with pytest.raises(
+        KeyError, match=r"f\.safetensors: no features for the instruction\(s\) \['fly away'\]"
+    ):
+        loaded.select_action(pre(dict(obs) | {"task": "fly away"}))

@@ -1,4 +1,5 @@
-"""Text encoders: a tiny CLIP built and saved by the test, the packaged MiniLM, and per-instruction caching."""
+"""Text encoders: a tiny CLIP built and saved by the test, the packaged MiniLM, per-instruction caching, and feature
+tables (the encoder's exact outputs read back; every way a table can be wrong refused by name)."""
 
 from __future__ import annotations
 
@@ -6,9 +7,18 @@ from pathlib import Path
 
 import pytest
 import torch
+from safetensors.torch import save_file
 from transformers import CLIPTextConfig, CLIPTextModel
 
-from sigma_policy.text_encoder import CLIPTextEncoder, MiniLMTextEncoder, make_text_encoder, minilm_model_dir
+from sigma_policy.text_encoder import (
+    TEXT_FEATURES_ENV,
+    CLIPTextEncoder,
+    MiniLMTextEncoder,
+    TextFeatureTable,
+    make_text_encoder,
+    minilm_model_dir,
+    save_text_features,
+)
 
 
 def bytes_to_unicode() -> dict[int, str]:
@@ -119,3 +129,78 @@ def test_minilm_loads_without_transformers_report_and_restores_its_settings():
     assert proc.returncode == 0, proc.stderr[-3000:]
     assert proc.stdout.split() == ["30", "True"]  # WARNING and bars on: the defaults, restored
     assert "LOAD REPORT" not in proc.stderr and "Loading weights" not in proc.stderr, proc.stderr[-3000:]
+
+
+TABLE_INSTRUCTIONS = ["pick up the red cube", "stack red on green", "open the door"]
+
+
+@pytest.fixture()
+def clip(tmp_path: Path) -> tuple[str, CLIPTextEncoder]:
+    path = str(_tiny_clip(tmp_path / "clip"))
+    return path, CLIPTextEncoder(path)
+
+
+def test_table_returns_the_encoders_features(clip, tmp_path: Path, monkeypatch) -> None:
+    path, enc = clip
+    table_file = save_text_features(
+        enc, [*TABLE_INSTRUCTIONS, TABLE_INSTRUCTIONS[0]], tmp_path / "f.safetensors"
+    )
+    assert not (tmp_path / "f.safetensors.tmp").exists()
+    monkeypatch.setenv(TEXT_FEATURES_ENV, str(table_file))
+    table = make_text_encoder("clip", path)
+    assert isinstance(table, TextFeatureTable)
+    assert (table.token_dim, table.sentence_dim, table.max_length) == (32, 32, 77)
+    assert table.identity == enc.identity == f"clip:{path}"
+    want, got = enc.encode(TABLE_INSTRUCTIONS[::-1]), table.encode(TABLE_INSTRUCTIONS[::-1])
+    assert torch.equal(want.tokens, got.tokens) and torch.equal(want.sentence, got.sentence)
+    with pytest.raises(KeyError, match=r"f\.safetensors: no features for the instruction\(s\) \['lift it'\]"):
+        table.encode(["lift it"])
+    # the encoder itself when asked for (sigma-encode), or with the variable unset
+    assert isinstance(make_text_encoder("clip", path, allow_table=False), CLIPTextEncoder)
+    monkeypatch.delenv(TEXT_FEATURES_ENV)
+    assert isinstance(make_text_encoder("clip", path), CLIPTextEncoder)
+
+
+def test_table_of_another_encoder_is_refused(clip, tmp_path: Path, monkeypatch) -> None:
+    _, enc = clip
+    table_file = save_text_features(enc, TABLE_INSTRUCTIONS, tmp_path / "f.safetensors")
+    monkeypatch.setenv(TEXT_FEATURES_ENV, str(table_file))
+    with pytest.raises(
+        ValueError, match=r"f\.safetensors: features of the encoder 'clip:.*', but the policy reads"
+    ):
+        make_text_encoder("minilm")
+    with pytest.raises(ValueError, match=r"features of the encoder"):
+        make_text_encoder("clip", "openai/clip-vit-base-patch32")
+
+
+def test_bad_tables_are_named(clip, tmp_path: Path) -> None:
+    _, enc = clip
+    with pytest.raises(FileNotFoundError, match=rf"{TEXT_FEATURES_ENV}=.*missing\.safetensors: no such file"):
+        TextFeatureTable(tmp_path / "missing.safetensors")
+    good = save_text_features(enc, TABLE_INSTRUCTIONS, tmp_path / "good.safetensors")
+    cut = tmp_path / "cut.safetensors"
+    cut.write_bytes(good.read_bytes()[:200])
+    with pytest.raises(ValueError, match=r"cut\.safetensors: not a readable text-feature table"):
+        TextFeatureTable(cut)
+    foreign = tmp_path / "foreign.safetensors"
+    save_file({"weight": torch.zeros(2)}, foreign)
+    with pytest.raises(ValueError, match=r"foreign\.safetensors: not a sigma text-feature table"):
+        TextFeatureTable(foreign)
+    table = TextFeatureTable(good)
+    meta = {"format": "sigma-text-features/1", "encoder": table.identity, "max_length": "77"}
+    nan = tmp_path / "nan.safetensors"
+    tokens = torch.full((1, 77, 32), float("nan"))
+    save_file(
+        {"tokens": tokens, "sentence": torch.zeros(1, 32)}, nan, metadata=meta | {"instructions": '["a"]'}
+    )
+    with pytest.raises(ValueError, match=r"nan\.safetensors: the features hold NaN"):
+        TextFeatureTable(nan)
+    short = tmp_path / "short.safetensors"
+    save_file(
+        {"tokens": torch.zeros(2, 77, 32), "sentence": torch.zeros(2, 32)}, short,
+        metadata=meta | {"instructions": '["a"]'},
+    )  # fmt: skip
+    with pytest.raises(ValueError, match=r"short\.safetensors: 1 instructions but tokens \(2, 77, 32\)"):
+        TextFeatureTable(short)
+    with pytest.raises(ValueError, match="at least one instruction"):
+        save_text_features(enc, [], tmp_path / "empty.safetensors")
