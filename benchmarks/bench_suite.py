@@ -61,6 +61,7 @@ SUITE_ARGS = ["--policy.use_cpu_bf16_autocast=true"]
 # steps at batch 8 (docs/learning.md), `gpu` 3000 at batch 64, the length of its own decay (docs/gpu.md).
 PRESET_BUDGETS: dict[str, tuple[int, int]] = {"gpu": (3000, 64)}
 DEFAULT_BUDGET = (6000, 8)
+STAGES = ("collect", "train", "evaluate")
 
 
 @dataclass
@@ -101,8 +102,13 @@ class SuiteBenchConfig:
     # Write benchmarks/results/suite.{md,json} (RESULTS.md includes them).
     publish: bool = True
     results_dir: Path | None = None
+    # The last stage to run: `collect` (the datasets), `train` (and the runs; a machine without robosuite trains
+    # on data collected elsewhere, docs/gpu.md) or `evaluate` (everything: diagnose, closed loop, the table).
+    stop_after: str = "evaluate"
 
     def __post_init__(self) -> None:
+        if self.stop_after not in STAGES:
+            raise ValueError(f"--stop_after must be one of {', '.join(STAGES)}, got {self.stop_after!r}")
         steps, batch_size = PRESET_BUDGETS.get(self.preset, DEFAULT_BUDGET)
         self.steps = self.steps or steps
         self.batch_size = self.batch_size or batch_size
@@ -202,6 +208,20 @@ def run_one(cfg: SuiteBenchConfig, seed: int, train_root: Path, held_root: Path)
     return {"seed": seed, "trained_on": trained_on} | done
 
 
+def stop_early(cfg: SuiteBenchConfig, train_root: Path, held_root: Path) -> int:
+    """``--stop_after collect`` or ``train``: the datasets, and with ``train`` every seed's run, then a summary."""
+    from benchmarks.training_runs import train_unless_done
+
+    done = [f"data {train_root} and {held_root}"]
+    if cfg.stop_after == "train":
+        for seed in cfg.seeds:
+            run = cfg.train_run(seed, train_root)
+            seconds = train_unless_done(run, cfg.run_dir(seed), f"[suite] seed {seed}")
+            done.append(f"seed {seed}: {run.checkpoint} ({seconds / 60:.1f} min of training)")
+    print(f"bench_suite: stopped after {cfg.stop_after}; " + "; ".join(done))
+    return 0
+
+
 def markdown(cfg: SuiteBenchConfig, results: list[dict]) -> str:
     from benchmarks.bench_demos import cell, numbers
 
@@ -285,6 +305,8 @@ def main(argv: list[str] | None = None) -> int:
     import sigma_data  # noqa: F401  (MUJOCO_GL before robosuite)
 
     train_root, held_root = collect_data(cfg)
+    if cfg.stop_after != "evaluate":
+        return stop_early(cfg, train_root, held_root)
     results = [run_one(cfg, seed, train_root, held_root) for seed in cfg.seeds]
     table = markdown(cfg, results)
     print(table)

@@ -20,13 +20,8 @@ def train_diagnose_evaluate(
     ``run.device``. Returns ``train_seconds``, ``diagnostics`` and ``eval`` (the evaluation summary)."""
     from pipelines.diagnostics import DiagnoseConfig, run_diagnose
     from pipelines.evaluate import EvalConfig, run_eval
-    from pipelines.training import train
 
-    record = run_dir / "train_seconds.json"
-    if run.reuse_or_clear(record, label) is None:
-        print(f"{label}: lerobot-train {' '.join(run.extra_args)}", flush=True)
-        _, seconds = train(run, log_path=run_dir / "train.log")
-        record.write_text(json.dumps({"seconds": seconds}))
+    seconds = train_unless_done(run, run_dir, label)
     diagnostics = run_diagnose(
         DiagnoseConfig(run=run.output_dir, heldout_root=heldout_root, max_frames=200, device=run.device)
     )
@@ -46,8 +41,20 @@ def train_diagnose_evaluate(
             )
         )
         print(f"{label}: evaluated in {time.perf_counter() - t0:.0f} s", flush=True)
-    seconds = json.loads(record.read_text())["seconds"]
     return {"train_seconds": seconds, "diagnostics": diagnostics, "eval": summary}
+
+
+def train_unless_done(run: TrainRun, run_dir: Path, label: str) -> float:
+    """Train ``run`` unless a finished run with the same options is there (resumed if interrupted); its log and
+    wall time go to ``run_dir``. Returns the training's wall seconds."""
+    from pipelines.training import train
+
+    record = run_dir / "train_seconds.json"
+    if run.reuse_or_clear(record, label) is None:
+        print(f"{label}: lerobot-train {' '.join(run.extra_args)}", flush=True)
+        _, seconds = train(run, log_path=run_dir / "train.log")
+        record.write_text(json.dumps({"seconds": seconds}))
+    return json.loads(record.read_text())["seconds"]
 
 
 def collect_train_and_heldout(

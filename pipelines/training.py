@@ -143,11 +143,15 @@ class TrainRun:
     def command(self) -> list[str]:
         """The ``lerobot-train`` command line: a fresh run (:meth:`arguments`), or ``--resume=true`` from
         :attr:`resumable` (the saved ``train_config.json`` then holds every option)."""
-        executable = str(Path(sys.executable).with_name("lerobot-train"))
+        script = Path(sys.executable).with_name("lerobot-train")
+        # Without the console script (LeRobot unpacked onto PYTHONPATH, docs/gpu.md), its module.
+        executable = (
+            [str(script)] if script.exists() else [sys.executable, "-m", "lerobot.scripts.lerobot_train"]
+        )
         if self.resumable is not None:
             config = self.resumable / "pretrained_model" / "train_config.json"
-            return [executable, f"--config_path={config}", "--resume=true"]
-        return [executable, *self.arguments()]
+            return [*executable, f"--config_path={config}", "--resume=true"]
+        return [*executable, *self.arguments()]
 
     def arguments(self) -> list[str]:
         """The ``lerobot-train`` arguments of this run as a fresh start (a resumed run continues with them)."""

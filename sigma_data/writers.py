@@ -213,7 +213,8 @@ class SigmaWriter:
         # LeRobot maps every saved episode through `datasets`, which draws a "Map" bar each time; sigma's own
         # progress bars (per episode / shard) say the same thing once.
         disable_progress_bars()
-        quiet_video_encoders()
+        if use_videos:  # a keyframe dataset encodes no video: PyAV need not even be importable
+            quiet_video_encoders()
         self.root = Path(root)
         self.layout = layout
         if self.root.exists():

@@ -142,3 +142,31 @@ def test_jittered_demonstrations_are_named_and_never_mixed_with_clean_ones(tmp_p
         collect_train_and_heldout(tmp_path, ["lift"], 2, 1, ["agentview"], 48, 1, "t")
     with pytest.raises(FileExistsError, match=r"other options \(pregrasp_jitter_m 0\.0 -> 0\.02\)"):
         collect_train_and_heldout(tmp_path, ["lift"], 2, 1, ["agentview"], 32, 1, "t", pregrasp_jitter_m=0.02)
+
+
+def test_stop_after_train_trains_every_seed_on_the_collected_data_and_scores_nothing(
+    tmp_path, monkeypatch, capsys
+):
+    """``--stop_after train`` (a GPU machine without robosuite, docs/gpu.md): the datasets found on disk, one run per
+    seed, then a summary; no diagnosis or closed loop. An unknown stage is refused."""
+    import benchmarks.bench_suite as bench
+    import benchmarks.training_runs as runs
+
+    data = (tmp_path / "train" / "data" / "keyframe", tmp_path / "heldout" / "data" / "keyframe")
+    monkeypatch.setattr(bench, "collect_data", lambda cfg: data)
+    trained = []
+    monkeypatch.setattr(runs, "train_unless_done", lambda run, run_dir, label: trained.append(run) or 420.0)
+    monkeypatch.setattr(bench, "run_one", lambda *a: pytest.fail("scored a run"))
+    assert bench.main(["--output_dir", str(tmp_path), "--seeds", "[0,1]", "--stop_after", "train"]) == 0
+    assert [r.seed for r in trained] == [0, 1] and {r.dataset_root for r in trained} == {data[0]}
+    out = capsys.readouterr().out
+    assert (
+        "bench_suite: stopped after train; data " in out
+        and "seed 1: " in out
+        and "(7.0 min of training)" in out
+    )
+    trained.clear()
+    assert bench.main(["--output_dir", str(tmp_path), "--stop_after", "collect"]) == 0
+    assert not trained
+    with pytest.raises(ValueError, match="--stop_after must be one of collect, train, evaluate"):
+        SuiteBenchConfig(stop_after="score")

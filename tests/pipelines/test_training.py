@@ -5,6 +5,7 @@ from __future__ import annotations
 import json
 import os
 import shutil
+import sys
 from pathlib import Path
 
 import pytest
@@ -202,3 +203,13 @@ def test_the_gpu_preset_reuses_the_suite_run_widened_by_hand(tmp_path):
     (run.checkpoint / "train_config.json").write_text(json.dumps(saved))
     with pytest.raises(ValueError, match=r"this run's --policy\.preset=gpu means 32"):
         run.reuse_or_clear(record, "gpu")
+
+
+def test_command_runs_the_module_where_the_console_script_is_missing(tmp_path, monkeypatch):
+    """LeRobot unpacked onto PYTHONPATH (a GPU machine with no network, docs/gpu.md) has no ``lerobot-train``
+    script beside the interpreter: the run starts LeRobot's module with the same arguments."""
+    run = TrainRun(dataset_root=tmp_path / "data", output_dir=tmp_path / "train", steps=4, batch_size=2)
+    assert run.command()[0].endswith("lerobot-train")
+    python = tmp_path / "bin" / "python3"
+    monkeypatch.setattr(sys, "executable", str(python))
+    assert run.command() == [str(python), "-m", "lerobot.scripts.lerobot_train", *run.arguments()]

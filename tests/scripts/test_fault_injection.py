@@ -9,7 +9,6 @@ parent.
 
 from __future__ import annotations
 
-import importlib.util
 import json
 import os
 import shlex
@@ -22,20 +21,14 @@ import draccus
 import pyarrow.parquet as pq
 import pytest
 
+from tests.scripts.script_module import load_script
+
 ROOT = Path(__file__).resolve().parents[2]
 SCRIPT = ROOT / "scripts" / "fault_injection.py"
 SMALLEST = ["--episodes=1", "--workers=1", "--dense=false", "--size=32", "--cameras=agentview"]
 
 
-def _module():
-    spec = importlib.util.spec_from_file_location("fault_injection", SCRIPT)
-    module = importlib.util.module_from_spec(spec)
-    sys.modules["fault_injection"] = module  # dataclasses look their module up
-    spec.loader.exec_module(module)
-    return module
-
-
-fi = _module()
+fi = load_script("fault_injection")
 
 
 def _run(*args: str) -> subprocess.CompletedProcess:
