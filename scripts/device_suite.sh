@@ -28,13 +28,16 @@ t0=$(date +%s)
 if [[ ! -f $state/started ]]; then
   [[ -f $kit/site.tar.xz ]] || { echo "device_suite: $kit/site.tar.xz is missing: carry $kit" >&2; exit 1; }
   rm -rf "$state" && mkdir -p "$state/logs"
-  if command -v ldconfig >/dev/null && ! ldconfig -p | grep -q libEGL.so.1; then  # GL loaders, where there are none
+  # GL loaders, where there are none (grep reads all of ldconfig's list: with -q, pipefail could see a SIGPIPE)
+  if command -v ldconfig >/dev/null && ! ldconfig -p | grep libEGL.so.1 >/dev/null; then
     for f in "$kit"/gl/*.deb; do dpkg -x "$f" /; done
     ldconfig
   fi
   tar -xJf "$kit/site.tar.xz" -C "$state"
   {
     echo "export PYTHONPATH=$state/site${PYTHONPATH:+:$PYTHONPATH} PYTHONUNBUFFERED=1 MUJOCO_GL=egl"
+    vendor=/usr/local/nvidia/share/glvnd/egl_vendor.d/10_nvidia.json  # the driver's EGL, where it is mounted
+    [[ -f $vendor ]] && echo "export __EGL_VENDOR_LIBRARY_FILENAMES=$vendor"
     echo "export SIGMA_TEXT_FEATURES=$(realpath "$kit")/text_features.safetensors HF_HUB_OFFLINE=1 TOKENIZERS_PARALLELISM=false"
   } >"$state/env.sh"
   # One line of quoted bench_suite arguments per run.
