@@ -34,7 +34,7 @@ from pathlib import Path
 
 import torch
 from safetensors import safe_open
-from safetensors.torch import load_file, save_file
+from safetensors.torch import save_file
 from torch import Tensor, nn
 
 __all__ = [
@@ -255,9 +255,9 @@ class TextFeatureTable(TextEncoder):
         if not self.path.is_file():
             raise FileNotFoundError(f"{TEXT_FEATURES_ENV}={self.path}: no such file")
         try:
-            tensors = load_file(self.path)
-            with safe_open(self.path, "pt") as f:
+            with safe_open(self.path, "pt") as f:  # one read: the tensors and the header's metadata
                 meta = f.metadata() or {}
+                tensors = {name: f.get_tensor(name) for name in f.keys()}  # noqa: SIM118 (not a dict)
         except Exception as e:  # a truncated or foreign file: say which
             raise ValueError(f"{self.path}: not a readable text-feature table ({e})") from e
         if meta.get("format") != TABLE_FORMAT or {"tokens", "sentence"} - tensors.keys():
