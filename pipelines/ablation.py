@@ -1,14 +1,16 @@
 """``sigma-ablate``: does the contrastive loss help? The paper's ablation, on robosuite, with honest intervals.
 
-Two arms share everything but the loss: the same keyframe dataset (collected once by the scripted experts), the
-same training seed, steps, batch size and scene box, and the same evaluation seeds:
+The arms (``--arms``, two by default) share everything but the loss: the same keyframe dataset (collected once by
+the scripted experts), the same training seed, steps, batch size and scene box, and the same evaluation seeds:
 
+* ``baseline`` — the RVT-style policy (``--policy.use_contrastive=false``: BC only);
 * ``contrastive`` — the Σ-agent policy (``--policy.use_contrastive=true``: BC + state↔language and
-  (state, language)↔goal InfoNCE, λ = ``bc_lambda``);
-* ``baseline`` — the RVT-style policy (``--policy.use_contrastive=false``: BC only).
+  (state, language)↔goal InfoNCE, λ = ``bc_lambda``), its features as the preset has them;
+* ``centred`` / ``uncentred`` — the Σ-agent policy with ``--policy.contrastive_center`` forced on / off (the goal
+  term's features minus their batch mean before normalising, sigma_policy/contrastive.py).
 
 The default task subset is the one where the instruction decides success (Stack in both orders, PickPlace
-with four objects on the table), so a policy that ignores language cannot exceed chance. Both arms train with
+with four objects on the table), so a policy that ignores language cannot exceed chance. The arms train with
 the stock ``lerobot-train`` (in parallel, one process per arm, the cores split between them) and are evaluated
 closed-loop by ``sigma-eval``. The report (success per variation with Wilson 95% intervals, the last logged
 losses, training time) goes to ``<output_dir>/ablation.md`` and, with ``--publish true``, to
@@ -19,6 +21,7 @@ an arm with evaluation results is not re-evaluated (``--fresh true`` starts over
 
     sigma-ablate                                   # defaults: 10 demos/variation, 1500 steps, 10 eval episodes
     sigma-ablate --steps 200 --eval_episodes 2     # a quick look
+    sigma-ablate --arms '[baseline,uncentred,centred]'
 """
 
 from __future__ import annotations
@@ -40,6 +43,14 @@ os.environ.setdefault("HF_HUB_OFFLINE", "1")
 ARMS: dict[str, list[str]] = {
     "baseline": ["--policy.use_contrastive=false"],
     "contrastive": ["--policy.use_contrastive=true"],
+    "uncentred": ["--policy.use_contrastive=true", "--policy.contrastive_center=false"],
+    "centred": ["--policy.use_contrastive=true", "--policy.contrastive_center=true"],
+}
+ARM_TITLES = {
+    "baseline": "baseline (BC only)",
+    "contrastive": "contrastive (Σ-agent)",
+    "uncentred": "Σ-agent, uncentred features",
+    "centred": "Σ-agent, centred features",
 }
 
 
@@ -54,7 +65,9 @@ class AblationConfig:
     episodes: int = 10
     cameras: list[str] = field(default_factory=lambda: list(DEFAULT_CAMERAS))
     image_size: int = 64
-    # The training budget, identical for both arms.
+    # The arms, each a name in ARMS (baseline, contrastive, uncentred, centred); the first is the reference.
+    arms: list[str] = field(default_factory=lambda: ["baseline", "contrastive"])
+    # The training budget, identical for every arm.
     preset: str = "small"
     steps: int = 1500
     batch_size: int = 8
@@ -63,7 +76,7 @@ class AblationConfig:
     # Evaluation episodes per variation (seeds from 100000, disjoint from the collection seeds).
     eval_episodes: int = 10
     max_keyframes: int = 10
-    # Worker processes for collection and evaluation; the two arms train side by side with cores split.
+    # Worker processes for collection and evaluation; the arms train side by side with the cores split.
     workers: int = 2
     # Discard previous checkpoints and evaluations (the collected data is always reused when it is complete).
     fresh: bool = False
@@ -87,7 +100,7 @@ def collect_stage(cfg: AblationConfig) -> Path:
 
 
 def train_stage(cfg: AblationConfig, dataset: Path) -> dict[str, dict]:
-    """Train both arms side by side (resuming finished ones); return per-arm checkpoint, seconds, metrics."""
+    """Train the arms side by side (resuming finished ones); return per-arm checkpoint, seconds, metrics."""
     from pipelines.training import TrainRun, last_logged_metrics, start, wait
     from sigma_data.suite import scene_bounds
 
@@ -105,7 +118,7 @@ def train_stage(cfg: AblationConfig, dataset: Path) -> dict[str, dict]:
             job_name=f"ablation_{arm}",
             extra_args=args,
         )
-        for arm, args in ARMS.items()
+        for arm, args in ((name, ARMS[name]) for name in cfg.arms)
     }
     cores = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count() or 1
     threads = max(1, cores // len(runs))
@@ -169,20 +182,20 @@ def _pct(row: dict) -> str:
 
 
 def report(cfg: AblationConfig, dataset: Path, trained: dict[str, dict], evals: dict[str, dict]) -> str:
-    """The Markdown comparison: per variation, both arms with Wilson 95% intervals, then training facts."""
+    """The Markdown comparison: per variation, every arm with Wilson 95% intervals, then training facts."""
     from sigma_data.contract import read_sidecar
 
     rows = {arm: {(r["task"], r["variation"]): r for r in s["variations"]} for arm, s in evals.items()}
     keys = sorted(set().union(*(r.keys() for r in rows.values())))
     lines = [
-        "| task | variation | baseline (BC only) | contrastive (Σ-agent) |",
-        "|---|---|---|---|",
+        "| task | variation | " + " | ".join(ARM_TITLES[arm] for arm in cfg.arms) + " |",
+        "|---|---|" + "---|" * len(cfg.arms),
     ]
     for key in keys:
-        cells = [_pct(rows[arm][key]) if key in rows[arm] else "-" for arm in ("baseline", "contrastive")]
-        lines.append(f"| {key[0]} | {key[1]} | {cells[0]} | {cells[1]} |")
-    means = [f"**{100 * evals[arm]['mean_success']:.1f}%**" for arm in ("baseline", "contrastive")]
-    lines.append(f"| **mean** | | {means[0]} | {means[1]} |")
+        cells = [_pct(rows[arm][key]) if key in rows[arm] else "-" for arm in cfg.arms]
+        lines.append(f"| {key[0]} | {key[1]} | " + " | ".join(cells) + " |")
+    means = [f"**{100 * evals[arm]['mean_success']:.1f}%**" for arm in cfg.arms]
+    lines.append("| **mean** | | " + " | ".join(means) + " |")
 
     n_eps = (read_sidecar(dataset) or {}).get("num_episodes", "?")
     facts = [
@@ -190,7 +203,7 @@ def report(cfg: AblationConfig, dataset: Path, trained: dict[str, dict], evals: 
         "| arm | training wall time | last logged losses |",
         "|---|---|---|",
     ]
-    for arm in ("baseline", "contrastive"):
+    for arm in cfg.arms:
         m = trained[arm].get("last_metrics", {})
         parts = [
             f"{k} {m[k]:.3f}"
@@ -209,11 +222,12 @@ def report(cfg: AblationConfig, dataset: Path, trained: dict[str, dict], evals: 
         )
         facts.append(f"| {arm} | {lines_t} | {', '.join(parts) or '-'} |")
     seeds = next(iter(evals.values()))["variations"][0]["seeds"]
+    flags = "; ".join(f"{arm} `{' '.join(ARMS[arm])}`" for arm in cfg.arms)
     setup = (
         f"Data: {n_eps} expert episodes ({cfg.episodes} seeds per variation from 0, failed expert runs dropped), "
         f"{len(cfg.cameras)} cameras at {cfg.image_size}² ({', '.join(cfg.cameras)}), keyframe dataset "
         f"`{dataset}`. Training: `{cfg.preset}` preset, {cfg.steps} steps × batch {cfg.batch_size}, seed "
-        f"{cfg.seed}, {cfg.device}, scene box of the tasks; the arms differ only in `--policy.use_contrastive`. "
+        f"{cfg.seed}, {cfg.device}, scene box of the tasks; the arms differ only in their flags: {flags}. "
         f"Evaluation: {cfg.eval_episodes} episodes per variation, seeds {seeds[0]}–{seeds[-1]} (disjoint from "
         f"the training seeds), at most {cfg.max_keyframes} keyframes per episode. Chance of the goal InfoNCE "
         f"term: log(batch) = {math.log(cfg.batch_size):.3f}."
@@ -225,13 +239,16 @@ def run_ablation(cfg: AblationConfig) -> str:
     import sigma_data  # noqa: F401  (MUJOCO_GL before robosuite)
     from pipelines.reporting import start_run_dir, write_run_outputs
 
+    unknown = [arm for arm in cfg.arms if arm not in ARMS]
+    if unknown or len(set(cfg.arms)) != len(cfg.arms) or not cfg.arms:
+        raise ValueError(f"--arms must name distinct arms of {sorted(ARMS)}, got {cfg.arms}")
     cfg.output_dir = start_run_dir(cfg.output_dir, cfg.fresh)
     t0 = time.perf_counter()
     print("=== 1/3 collect (scripted experts -> keyframe dataset) ===", flush=True)
     dataset = collect_stage(cfg)
-    print("\n=== 2/3 train both arms (lerobot-train) ===", flush=True)
+    print(f"\n=== 2/3 train {len(cfg.arms)} arms (lerobot-train) ===", flush=True)
     trained = train_stage(cfg, dataset)
-    print("\n=== 3/3 evaluate both arms (sigma-eval) ===", flush=True)
+    print(f"\n=== 3/3 evaluate {len(cfg.arms)} arms (sigma-eval) ===", flush=True)
     evals = eval_stage(cfg, dataset, trained)
     text = report(cfg, dataset, trained, evals)
     write_run_outputs(
@@ -244,11 +261,10 @@ def run_ablation(cfg: AblationConfig) -> str:
         cfg.publish,
     )
     print("\n" + text)
-    b, c = (100 * evals[arm]["mean_success"] for arm in ("baseline", "contrastive"))
+    scores = " vs ".join(f"{arm} {100 * evals[arm]['mean_success']:.1f}%" for arm in cfg.arms)
     print(
-        f"\nsigma-ablate: baseline {b:.1f}% vs contrastive {c:.1f}% mean success over "
-        f"{len(evals['baseline']['variations'])} variations in {(time.perf_counter() - t0) / 60:.1f} min "
-        f"-> {cfg.output_dir}/ablation.md"
+        f"\nsigma-ablate: {scores} mean success over {len(evals[cfg.arms[0]]['variations'])} variations in "
+        f"{(time.perf_counter() - t0) / 60:.1f} min -> {cfg.output_dir}/ablation.md"
     )
     return text
 

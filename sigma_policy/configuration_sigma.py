@@ -89,6 +89,11 @@ Paper-vs-code discrepancies (docs/method.md §13), each a field; default and rea
 15./17. CLIP weights / precision — replaced by ``text_encoder`` (frozen, cached per instruction); no field.
 16. ``detach_heatmap_for_features=True`` (code): no gradient from the rotation/gripper/collision losses flows
     into the translation logits through the heatmap-weighted features.
+18. Centred goal features — ``contrastive_center`` (a sigma option; False in every preset, as in paper and code):
+    the goal term's q and g minus their batch mean before the L2 normalisation (sigma_policy/contrastive.py). On
+    the tiny test scenes it takes the goal term from a stall near log 4 to about 0 in 150 steps; on Lift + Stack
+    at 1500 CPU steps centring all four features changed no closed-loop success (48/90 against 48/90, single
+    runs; docs/learning.md "Centred contrastive features"), so the presets keep the paper's form.
 
 Inputs per camera ``<cam>`` in ``cameras`` (all cameras that have them when ``cameras`` is empty):
 ``observation.images.<cam>`` (RGB in [0,1]), ``observation.images.<cam>_depth`` (depth, unit ``depth_unit``),
@@ -159,6 +164,7 @@ PRESETS: dict[str, dict[str, Any]] = {
         "scheduler_decay_steps": 25000,
         "per_task_bounds": False,
         "yaw_scan_px": 0,
+        "contrastive_center": False,
     },
     "small": {
         "img_size": 64,
@@ -189,6 +195,7 @@ PRESETS: dict[str, dict[str, Any]] = {
         "scheduler_decay_steps": 2000,
         "per_task_bounds": False,
         "yaw_scan_px": 0,
+        "contrastive_center": False,
     },
 }
 # The multi-task recipe of the suite benchmark (benchmarks/bench_suite.py, RESULTS.md "The suite on 2 CPU cores"):
@@ -308,6 +315,9 @@ class SigmaConfig(PreTrainedConfig):
 
     # ---- contrastive IL
     use_contrastive: bool = True
+    # Subtract the goal term's features' batch mean before the L2 normalisation (sigma_policy/contrastive.py; not
+    # in the paper; discrepancy 18 above). None = from preset (every preset False).
+    contrastive_center: bool | None = None
 
     # ---- inputs
     cameras: list[str] = field(default_factory=list)

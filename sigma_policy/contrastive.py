@@ -11,6 +11,14 @@ process gives exactly the single-process loss. Per-process batch sizes may diffe
 
 Optionally, negatives that share the positive's instruction are masked out (paper: "negatives from other
 tasks"); in the state ↔ language term such negatives have the very same language feature as the positive.
+
+Optionally (``center``, a sigma option, not in the paper), the goal term's features q and g have their mean over
+the gathered batch subtracted before the L2 normalisation. Scenes of one table share most of their content, so at
+initialisation every delta(s_t, l) and phi(g) of a batch points the same way (cosine similarity about 0.999 on the
+tiny test scenes) and every logit is about the same. Centring removes the shared direction, so the logits compare
+what differs between samples from the first step. The state ↔ language term is left as it is: a batch holds a few
+instructions in a changing mix, and a language feature minus the batch mean would be a different target in every
+batch (measured: docs/learning.md "Centred contrastive features").
 """
 
 from __future__ import annotations
@@ -82,6 +90,12 @@ def info_nce(
     return F.cross_entropy(logits, labels)
 
 
+def centred(x: Tensor) -> Tensor:
+    """``x`` (B_local, D) minus the mean of the batch gathered from every process (the same mean on each one)."""
+    x_all, _ = gather_with_local_grad(x)
+    return x - x_all.mean(dim=0, keepdim=True)
+
+
 def symmetric_info_nce(a: Tensor, b: Tensor, logit_scale: Tensor, group_ids: Tensor | None = None) -> Tensor:
     """½ [InfoNCE(a -> b_all) + InfoNCE(b -> a_all)] for L2-normalised a, b (B_local, D).
 
@@ -116,18 +130,22 @@ def contrastive_losses(
     logit_scale: Tensor,
     instruction_group: Tensor | None = None,
     logit_scale_max: float | None = None,
+    center: bool = False,
 ) -> ContrastiveLosses:
     """Σ-agent's two InfoNCE terms from raw (unnormalised) features (B, D) and ``logit_scale`` = exp(param).
 
     ``instruction_group`` (B,) int64 (see :func:`instruction_ids`) masks same-instruction negatives in the
-    state ↔ language term; ``logit_scale_max`` clamps the scale (CLIP uses 100; Σ does not clamp).
+    state ↔ language term; ``logit_scale_max`` clamps the scale (CLIP uses 100; Σ does not clamp); ``center``
+    subtracts the batch mean of ``fused_feat`` and ``goal_feat`` before normalising (see the module docstring).
     """
     if logit_scale_max is not None:
         logit_scale = logit_scale.clamp(max=logit_scale_max)
     state, lang, fused, goal = (
-        F.normalize(x if x.dtype == torch.float64 else x.float(), dim=-1)
-        for x in (state_feat, lang_feat, fused_feat, goal_feat)
+        x if x.dtype == torch.float64 else x.float() for x in (state_feat, lang_feat, fused_feat, goal_feat)
     )
+    if center:
+        fused, goal = centred(fused), centred(goal)
+    state, lang, fused, goal = (F.normalize(x, dim=-1) for x in (state, lang, fused, goal))
     return ContrastiveLosses(
         state_language=symmetric_info_nce(state, lang, logit_scale, instruction_group),
         goal=symmetric_info_nce(fused, goal, logit_scale),

@@ -267,6 +267,7 @@ class SigmaPolicy(PreTrainedPolicy):
                 out.logit_scale,
                 instruction_group=group,
                 logit_scale_max=cfg.logit_scale_max,
+                center=cfg.contrastive_center,
             )
             per_sample = cfg.bc_lambda * bc + (1 - cfg.bc_lambda) * cl.total
             info |= {

@@ -57,3 +57,33 @@ def test_last_logged_metrics_reads_lerobots_log_line(tmp_path):
     m = last_logged_metrics(log)
     assert m["step"] == 1000 and m["loss"] == 6.294 and m["lr"] == 1.5e-3
     assert m["contrastive_goal_loss"] == 1.075
+
+
+def test_unknown_or_repeated_arms_are_refused_before_anything_is_written(tmp_path):
+    import pytest
+
+    for arms in (["baseline", "centered"], ["centred", "centred"], []):
+        cfg = AblationConfig(output_dir=tmp_path / "ablation", arms=arms)
+        with pytest.raises(ValueError, match="--arms must name distinct arms"):
+            run_ablation(cfg)
+        assert not cfg.output_dir.exists()
+
+
+def test_every_arm_is_a_column_of_the_report(tmp_path):
+    from pipelines.ablation import report
+
+    arms = ["baseline", "uncentred", "centred"]
+    cfg = AblationConfig(output_dir=tmp_path, tasks=["lift"], arms=arms)
+    row = {"task": "lift", "variation": "lift_cube", "successes": 3, "episodes": 4, "success_rate": 0.75}
+    evals = {
+        arm: {"variations": [row | {"ci95": [0.3, 0.95], "seeds": [100000, 100003]}], "mean_success": 0.75}
+        for arm in arms
+    }
+    trained = {arm: {"train_seconds": 60.0, "threads": 1, "last_metrics": {"bc_loss": 1.0}} for arm in arms}
+    (tmp_path / "meta").mkdir()
+    (tmp_path / "meta" / "sigma.json").write_text(json.dumps({"num_episodes": 4}))
+    text = report(cfg, tmp_path, trained, evals)
+    header = next(line for line in text.splitlines() if line.startswith("| task |"))
+    assert header.count("|") == 2 + len(arms) + 1
+    assert "Σ-agent, centred features" in header and "Σ-agent, uncentred features" in header
+    assert "centred `--policy.use_contrastive=true --policy.contrastive_center=true`" in text

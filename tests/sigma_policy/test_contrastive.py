@@ -10,7 +10,7 @@ import torch.distributed as dist
 import torch.multiprocessing as mp
 import torch.nn.functional as F
 
-from sigma_policy.contrastive import contrastive_losses, instruction_ids, symmetric_info_nce
+from sigma_policy.contrastive import centred, contrastive_losses, instruction_ids, symmetric_info_nce
 
 
 def clip_loss(a: torch.Tensor, b: torch.Tensor, scale: float) -> torch.Tensor:
@@ -66,6 +66,26 @@ def test_loss_falls_well_below_chance_on_learnable_pairs():
     assert losses.goal.item() < 0.25 * math.log(batch)
 
 
+def test_centring_ignores_what_every_sample_shares():
+    """With ``center`` a direction shared by the whole batch (the table every scene shows) drops out of the goal
+    term: adding it changes nothing; without centring it swamps the per-sample signal and pins the loss at
+    log(batch). The state-language term is never centred."""
+    g = torch.Generator().manual_seed(2)
+    feats = [torch.randn(8, 16, generator=g, dtype=torch.float64) for _ in range(4)]
+    shared = [100.0 * torch.randn(1, 16, generator=g, dtype=torch.float64) for _ in range(4)]
+    moved_feats = [f + c for f, c in zip(feats, shared, strict=True)]
+    scale = torch.tensor(14.3, dtype=torch.float64)
+    plain = contrastive_losses(*feats, logit_scale=scale, center=True)
+    moved = contrastive_losses(*moved_feats, logit_scale=scale, center=True)
+    torch.testing.assert_close(moved.goal, plain.goal)
+    swamped = contrastive_losses(*moved_feats, logit_scale=scale)
+    assert abs(swamped.goal.item() - math.log(8)) < 0.05
+    assert abs(plain.goal.item() - math.log(8)) > 0.05
+    torch.testing.assert_close(
+        plain.state_language, contrastive_losses(*feats, logit_scale=scale).state_language
+    )
+
+
 # ---------------------------------------------------------------------------------- two processes on gloo
 def _features(n: int) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
     g = torch.Generator().manual_seed(123)
@@ -88,7 +108,10 @@ def _worker(rank: int, init_file: str, out_dir: str) -> None:
         b_loc = b[sl].clone().requires_grad_(True)
         loss = symmetric_info_nce(a_loc, b_loc, torch.tensor(5.0, dtype=torch.float64), ids[sl])
         loss.backward()
-        torch.save({"loss": loss.detach(), "ga": a_loc.grad, "gb": b_loc.grad}, f"{out_dir}/rank{rank}.pt")
+        torch.save(
+            {"loss": loss.detach(), "ga": a_loc.grad, "gb": b_loc.grad, "centred": centred(a[sl]).detach()},
+            f"{out_dir}/rank{rank}.pt",
+        )
     finally:
         dist.destroy_process_group()
 
@@ -117,3 +140,4 @@ def test_all_gather_across_two_gloo_processes(tmp_path):
         torch.testing.assert_close(got["loss"], ref.detach())
         torch.testing.assert_close(got["ga"], a_loc.grad)
         torch.testing.assert_close(got["gb"], b_loc.grad)
+        torch.testing.assert_close(got["centred"], a[sl] - a.mean(dim=0))  # one mean: the whole batch's
