@@ -40,17 +40,18 @@ from sigma_data.cameras import DEFAULT_CAMERAS
 
 os.environ.setdefault("HF_HUB_OFFLINE", "1")
 
-ARMS: dict[str, list[str]] = {
-    "baseline": ["--policy.use_contrastive=false"],
-    "contrastive": ["--policy.use_contrastive=true"],
-    "uncentred": ["--policy.use_contrastive=true", "--policy.contrastive_center=false"],
-    "centred": ["--policy.use_contrastive=true", "--policy.contrastive_center=true"],
-}
-ARM_TITLES = {
-    "baseline": "baseline (BC only)",
-    "contrastive": "contrastive (Σ-agent)",
-    "uncentred": "Σ-agent, uncentred features",
-    "centred": "Σ-agent, centred features",
+# arm -> (the report's column title, the lerobot-train arguments that make it)
+ARMS: dict[str, tuple[str, list[str]]] = {
+    "baseline": ("baseline (BC only)", ["--policy.use_contrastive=false"]),
+    "contrastive": ("contrastive (Σ-agent)", ["--policy.use_contrastive=true"]),
+    "uncentred": (
+        "Σ-agent, uncentred features",
+        ["--policy.use_contrastive=true", "--policy.contrastive_center=false"],
+    ),
+    "centred": (
+        "Σ-agent, centred features",
+        ["--policy.use_contrastive=true", "--policy.contrastive_center=true"],
+    ),
 }
 
 
@@ -118,7 +119,7 @@ def train_stage(cfg: AblationConfig, dataset: Path) -> dict[str, dict]:
             job_name=f"ablation_{arm}",
             extra_args=args,
         )
-        for arm, args in ((name, ARMS[name]) for name in cfg.arms)
+        for arm, (_, args) in ((name, ARMS[name]) for name in cfg.arms)
     }
     cores = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count() or 1
     threads = max(1, cores // len(runs))
@@ -188,7 +189,7 @@ def report(cfg: AblationConfig, dataset: Path, trained: dict[str, dict], evals: 
     rows = {arm: {(r["task"], r["variation"]): r for r in s["variations"]} for arm, s in evals.items()}
     keys = sorted(set().union(*(r.keys() for r in rows.values())))
     lines = [
-        "| task | variation | " + " | ".join(ARM_TITLES[arm] for arm in cfg.arms) + " |",
+        "| task | variation | " + " | ".join(ARMS[arm][0] for arm in cfg.arms) + " |",
         "|---|---|" + "---|" * len(cfg.arms),
     ]
     for key in keys:
@@ -222,7 +223,7 @@ def report(cfg: AblationConfig, dataset: Path, trained: dict[str, dict], evals: 
         )
         facts.append(f"| {arm} | {lines_t} | {', '.join(parts) or '-'} |")
     seeds = next(iter(evals.values()))["variations"][0]["seeds"]
-    flags = "; ".join(f"{arm} `{' '.join(ARMS[arm])}`" for arm in cfg.arms)
+    flags = "; ".join(f"{arm} `{' '.join(ARMS[arm][1])}`" for arm in cfg.arms)
     setup = (
         f"Data: {n_eps} expert episodes ({cfg.episodes} seeds per variation from 0, failed expert runs dropped), "
         f"{len(cfg.cameras)} cameras at {cfg.image_size}² ({', '.join(cfg.cameras)}), keyframe dataset "
