@@ -28,6 +28,12 @@ target: ``swap_nearest``, ``swap_trans_cm_median`` and ``swap_spread``, over the
 steps one checkpoint followed the instruction in every NutAssembly scene and in 64% of its own training PickPlace
 scenes).
 
+**Gripper swap** (``pipelines/gripper_swap.py``): where the gripper closes or opens in place, the two frames before
+and after see nearly the same scene and have different targets; swapping their gripper state should move the
+prediction to the other frame's target: ``gripper_swap_follow`` and ``gripper_swap_spread`` over the first 20 such
+pairs (``--gripper_pairs_per_task``) of every task, and per task (two of three Lift + Stack policies trained with
+other seeds ignored the gripper state on Stack, and scored 48/90 against 82/90; docs/learning.md).
+
 Pointed at a ``lerobot-train`` output directory, it diagnoses every saved checkpoint (``checkpoints/<step>/``) on
 the training keyframes and on held-out keyframes, and writes learning curves: ``diagnostics.json`` (every number),
 ``curves.png`` and ``curves.rrd`` (Rerun scalars, one entity per metric). Held-out keyframes are either another
@@ -53,6 +59,7 @@ from typing import Any
 import draccus
 import numpy as np
 
+from pipelines.gripper_swap import GripperPair, gripper_pairs, gripper_swap
 from pipelines.instruction_swap import SwapScene, instruction_swap, swap_scenes
 
 METRICS = (
@@ -91,6 +98,8 @@ class DiagnoseConfig:
     batch_size: int = 16
     # Scenes per task in the instruction swap (the first seeds recorded under several instructions).
     swap_scenes_per_task: int = 10
+    # Pairs per task in the gripper swap (the first frames where the gripper closes or opens in place).
+    gripper_pairs_per_task: int = 20
     device: str = "cpu"
     # Where diagnostics.json, curves.png and curves.rrd go (default: <run>/diagnostics or <checkpoint>/..).
     output_dir: Path | None = None
@@ -172,6 +181,7 @@ class KeyframeSet:
     steps: np.ndarray  # keyframe step within the episode (frame_index)
     episodes: list[int] | None = None  # the dataset episodes it covers (None = all)
     swap: list[SwapScene] = field(default_factory=list)  # scenes for the instruction-swap check
+    gripper: list[GripperPair] = field(default_factory=list)  # frame pairs for the gripper-swap check
 
 
 def goal_rows(
@@ -318,6 +328,8 @@ def diagnose_checkpoint(
                 out[kf.name]["per_variation"] = split_summaries(err, kf.steps, variations)
         if kf.swap:
             out[kf.name]["swap"] = instruction_swap(policy, pre, kf.dataset, kf.swap)
+        if kf.gripper:
+            out[kf.name]["gripper_swap"] = gripper_swap(policy, pre, kf.dataset, kf.gripper)
     return out
 
 
@@ -394,6 +406,10 @@ def run_diagnose(cfg: DiagnoseConfig) -> dict[str, Any]:
     sets = keyframe_sets(cfg, ckpts[-1][1])
     for kf in sets:
         kf.swap = swap_scenes(kf.dataset, kf.episodes, cfg.swap_scenes_per_task)
+        rows, _ = goal_rows(kf.dataset, kf.episodes)  # every goal frame: the thinned set has few neighbours
+        labels = row_labels(kf.dataset, rows, ("task",))
+        tasks = labels["task"].tolist() if labels is not None else ["unknown"] * len(rows)
+        kf.gripper = gripper_pairs(kf.dataset, rows, tasks, cfg.gripper_pairs_per_task)
     report: dict[str, Any] = {"checkpoints": [], "sets": {s.name: len(s.indices) for s in sets}}
     for step, ckpt in tqdm(ckpts, desc="sigma-diagnose", unit="checkpoint"):
         policy, pre, _ = load_policy(ckpt, cfg.device)
@@ -456,6 +472,15 @@ def summary_line(report: dict[str, Any]) -> str:
             parts[-1] += f": {by_task})" if by_task else ")"
             if swap.get("swap_spread") is not None:
                 parts[-1] += f", spread {swap['swap_spread']:.2f}"
+        grip = last[name].get("gripper_swap")
+        if grip:
+            by_task = ", ".join(
+                f"{t} {100 * v['gripper_swap_follow']:.0f}%" for t, v in grip.get("per_task", {}).items()
+            )
+            parts[-1] += (
+                f", gripper swap {100 * grip['gripper_swap_follow']:.0f}% ({grip['gripper_swap_pairs']} pairs"
+            )
+            parts[-1] += f": {by_task})" if by_task else ")"
     step = last["step"]
     at = f"step {step}" if step >= 0 else "checkpoint"
     return f"sigma-diagnose: {at}: " + "; ".join(parts) + f" -> {report['output_dir']}"

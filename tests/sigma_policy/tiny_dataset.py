@@ -116,9 +116,19 @@ def pose_vector(pos: np.ndarray, gripper_open: float, ignore_collision: float) -
     return np.concatenate([pos, DOWN_QUAT, [gripper_open, ignore_collision]]).astype(np.float32)
 
 
-def episode_plan(target: np.ndarray) -> list[tuple[np.ndarray, float]]:
-    """(eef position, gripper_open) of the 3 keyframes: home, pre-grasp, grasp."""
-    return [(HOME, 1.0), (target + np.array([0, 0, 0.08], np.float32), 1.0), (target.copy(), 0.0)]
+LIFT_M = 0.1  # the "grasp_lift" plan's lift
+
+
+def episode_plan(target: np.ndarray, plan: str = "reach") -> list[tuple[np.ndarray, float]]:
+    """(eef position, gripper_open) of the keyframes: home, pre-grasp, grasp (closed) for ``"reach"``; home,
+    pre-grasp, at the grasp open, closed in place, lifted for ``"grasp_lift"``."""
+    above = target + np.array([0, 0, 0.08], np.float32)
+    if plan == "reach":
+        return [(HOME, 1.0), (above, 1.0), (target.copy(), 0.0)]
+    if plan == "grasp_lift":
+        lifted = target + np.array([0, 0, LIFT_M], np.float32)
+        return [(HOME, 1.0), (above, 1.0), (target.copy(), 1.0), (target.copy(), 0.0), (lifted, 0.0)]
+    raise ValueError(f"plan must be 'reach' or 'grasp_lift', got {plan!r}")
 
 
 def scene_layout(scenes: str, episode: int, rng: np.random.Generator) -> tuple[dict[str, np.ndarray], str]:
@@ -134,9 +144,10 @@ def scene_layout(scenes: str, episode: int, rng: np.random.Generator) -> tuple[d
 
 
 def write_tiny_keyframe_dataset(
-    root: Path, episodes: int = 6, size: int = 48, scenes: str = "varied", seed: int = 0
+    root: Path, episodes: int = 6, size: int = 48, scenes: str = "varied", seed: int = 0, plan: str = "reach"
 ) -> Path:
-    """Write the dataset under ``root`` (must not exist) with LeRobot's writer and return ``root``."""
+    """Write the dataset under ``root`` (must not exist) with LeRobot's writer and return ``root``; ``plan`` is
+    :func:`episode_plan`'s."""
     from lerobot.datasets.lerobot_dataset import LeRobotDataset
 
     rng = np.random.default_rng(seed)
@@ -148,10 +159,10 @@ def write_tiny_keyframe_dataset(
     try:
         for ep in range(episodes):
             cubes, target_color = scene_layout(scenes, ep, rng)
-            plan = episode_plan(cubes[target_color])
+            keyframes = episode_plan(cubes[target_color], plan)
             instruction = f"reach the {target_color} cube"
-            for i, (pos, grip) in enumerate(plan):
-                nxt_pos, nxt_grip = plan[min(i + 1, len(plan) - 1)]
+            for i, (pos, grip) in enumerate(keyframes):
+                nxt_pos, nxt_grip = keyframes[min(i + 1, len(keyframes) - 1)]
                 boxes = [Box(c, CUBE_HALF, COLORS[name]) for name, c in cubes.items()]
                 boxes.append(Box(pos + np.array([0, 0, 0.06], np.float32), MARKER_HALF, COLORS["marker"]))
                 state = np.concatenate([pos, DOWN_QUAT, [grip, 0.04 * grip, 0.04 * grip]]).astype(np.float32)
