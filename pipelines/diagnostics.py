@@ -436,6 +436,12 @@ def run_diagnose(cfg: DiagnoseConfig) -> dict[str, Any]:
     return report
 
 
+def _share_text(label: str, result: dict[str, Any], share: str, count: int, unit: str) -> str:
+    """``", <label> 80% (<count> <unit>: a 70%, b 90%)"``: a swap check's ``share`` overall and per task."""
+    by_task = ", ".join(f"{t} {100 * v[share]:.0f}%" for t, v in result.get("per_task", {}).items())
+    return f", {label} {100 * result[share]:.0f}% ({count} {unit}" + (f": {by_task})" if by_task else ")")
+
+
 def summary_line(report: dict[str, Any]) -> str:
     last = report["checkpoints"][-1]
     parts = []
@@ -465,22 +471,14 @@ def summary_line(report: dict[str, Any]) -> str:
             )
         swap = last[name].get("swap")
         if swap:
-            by_task = ", ".join(
-                f"{t} {100 * v['swap_nearest']:.0f}%" for t, v in swap.get("per_task", {}).items()
-            )
-            parts[-1] += f", instruction swap {100 * swap['swap_nearest']:.0f}% ({swap['swap_scenes']} scenes"
-            parts[-1] += f": {by_task})" if by_task else ")"
+            parts[-1] += _share_text("instruction swap", swap, "swap_nearest", swap["swap_scenes"], "scenes")
             if swap.get("swap_spread") is not None:
                 parts[-1] += f", spread {swap['swap_spread']:.2f}"
         grip = last[name].get("gripper_swap")
         if grip:
-            by_task = ", ".join(
-                f"{t} {100 * v['gripper_swap_follow']:.0f}%" for t, v in grip.get("per_task", {}).items()
+            parts[-1] += _share_text(
+                "gripper swap", grip, "gripper_swap_follow", grip["gripper_swap_pairs"], "pairs"
             )
-            parts[-1] += (
-                f", gripper swap {100 * grip['gripper_swap_follow']:.0f}% ({grip['gripper_swap_pairs']} pairs"
-            )
-            parts[-1] += f": {by_task})" if by_task else ")"
     step = last["step"]
     at = f"step {step}" if step >= 0 else "checkpoint"
     return f"sigma-diagnose: {at}: " + "; ".join(parts) + f" -> {report['output_dir']}"

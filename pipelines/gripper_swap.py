@@ -50,21 +50,21 @@ def gripper_pairs(dataset: Any, rows: list[int], tasks: list[str], per_task: int
     :data:`IN_PLACE_M` and whose targets lie :data:`TARGETS_APART_M` or more apart."""
     data = dataset.hf_dataset.select_columns([STATE, ACTION, "episode_index", "index"])
     position = {int(i): p for p, i in enumerate(data["index"])}
+    states = np.stack([np.asarray(v) for v in data[STATE]])
+    targets = np.stack([np.asarray(v)[:3] for v in data[ACTION]])
+    episodes = np.asarray(data["episode_index"])
     task_of = dict(zip(rows, tasks, strict=True))
     pairs: list[GripperPair] = []
     taken: dict[str, int] = defaultdict(int)
     for r in rows:
         if r + 1 not in task_of or taken[task_of[r]] == per_task:
             continue
-        a, b = data[position[r]], data[position[r + 1]]
-        if a["episode_index"] != b["episode_index"]:
-            continue
-        sa, sb = np.asarray(a[STATE]), np.asarray(b[STATE])
-        ta, tb = np.asarray(a[ACTION])[:3], np.asarray(b[ACTION])[:3]
+        a, b = position[r], position[r + 1]
         if (
-            sa[GRIPPER_OPEN_INDEX] != sb[GRIPPER_OPEN_INDEX]
-            and np.linalg.norm(sa[:3] - sb[:3]) <= IN_PLACE_M
-            and np.linalg.norm(ta - tb) >= TARGETS_APART_M
+            episodes[a] == episodes[b]
+            and states[a, GRIPPER_OPEN_INDEX] != states[b, GRIPPER_OPEN_INDEX]
+            and np.linalg.norm(states[a, :3] - states[b, :3]) <= IN_PLACE_M
+            and np.linalg.norm(targets[a] - targets[b]) >= TARGETS_APART_M
         ):
             pairs.append(GripperPair((r, r + 1), task_of[r]))
             taken[task_of[r]] += 1
