@@ -16,7 +16,7 @@ policy``) and the benchmarks' reuse of a saved run (``pipelines/training.py``) r
 ``SigmaConfig``.
 
 **Added modules.** A checkpoint saved before a module existed (``lang_film``, ``local_channels``, the proprio token's
-position and orientation, the proprio input of the heads) has no config field for it, so its config resolves the
+position and orientation, the proprio input of the heads, ``proprio_film``) has no config field for it, so its config resolves the
 field from today's preset; loading the file into a network with that module would leave the module randomly
 initialised (LeRobot loads non-strictly). :func:`match_saved_modules` turns such fields off, with a warning, from the
 tensors the file holds, and ``SigmaPolicy`` rebuilds its network to match before loading.
@@ -109,6 +109,9 @@ def match_saved_modules(cfg: SigmaConfig, model_file: str) -> None:
     if cfg.lang_film and not any(k.startswith("network.lang_film.") for k in names):
         log.warning("%s has no instruction-FiLM weights (saved before policy.lang_film existed)", model_file)
         cfg.lang_film = False
+    if cfg.use_proprio and cfg.proprio_film and not any(k.startswith("network.proprio_film.") for k in names):
+        log.warning("%s has no proprio-FiLM weights (saved before policy.proprio_film existed)", model_file)
+        cfg.proprio_film = False
     if cfg.local_channels and not any(k.startswith("network.local_encoder.") for k in names):
         log.warning("%s has no local head features (saved before policy.local_channels existed)", model_file)
         cfg.local_channels = 0

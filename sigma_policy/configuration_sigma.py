@@ -14,6 +14,7 @@ from the preset in ``__post_init__``; a field given explicitly (CLI or ``config.
 | use_proprio | False (Σ code) | True (see choice 6) |
 | proprio_position | False | True (grip-site position in the box joins the proprio token; see choice 6) |
 | proprio_orientation, proprio_in_heads | False, False | True, True (grip-site orientation in the token; the token's input also feeds the heads) |
+| proprio_film | False | True (the proprio vector scales and shifts every image token; see choice 6; ``suite`` and ``gpu``: False) |
 | local_channels | 0 | 16 (the heads read full-resolution local features at the keyframe position) |
 | aug_translation_range, aug_yaw_range_deg | 0.125 m, 45° | 0, 45° (see "The small recipe") |
 | optimizer_lr, warm-up, decay steps | 9.6e-4, 2000, 25000 | 1e-2, 20, 2000 |
@@ -73,7 +74,10 @@ Paper-vs-code discrepancies (docs/method.md §13), each a field; default and rea
    with proprio and the task's scene box, Lift from 12 demos and 400 steps succeeds in 7 of 10 episodes).
    ``proprio_position`` adds the grip site's position in the scene box ([-1, 1], moved by the augmentation):
    whether to close depends on where the gripper is, and with the 36 cm box the heads missed that in one training
-   seed of two (``docs/learning.md``).
+   seed of two (``docs/learning.md``). ``proprio_film`` (``small`` on) also scales and shifts every image token
+   entering fusion by the proprio vector, as RVT-1 gives every patch its proprio: through the token alone, two
+   training seeds of three ignored the gripper state when placing the heatmap and mistook the grasp for the lift
+   (48/90 twice, 82/90); with the FiLM all three read it (61/90, 86/90, 84/90; ``docs/learning.md``).
 7. Temperature — learnable, ``logit_scale_init=log(1/0.07)``, ``logit_scale_max=None`` (code: unclamped;
    CLIP clamps the scale at 100).
 8. Projection heads — ``projection_activation=True`` (code: Linear + LeakyReLU before L2 normalisation);
@@ -152,6 +156,7 @@ PRESETS: dict[str, dict[str, Any]] = {
         "proprio_position": False,
         "proprio_orientation": False,
         "proprio_in_heads": False,
+        "proprio_film": False,
         "local_channels": 0,
         "head_activation": "relu",
         "lang_film": False,
@@ -183,6 +188,7 @@ PRESETS: dict[str, dict[str, Any]] = {
         "proprio_position": True,
         "proprio_orientation": True,
         "proprio_in_heads": True,
+        "proprio_film": True,
         "local_channels": 16,
         "head_activation": "leaky_relu",
         "lang_film": True,
@@ -201,6 +207,9 @@ PRESETS: dict[str, dict[str, Any]] = {
 # The multi-task recipe of the suite benchmark (benchmarks/bench_suite.py, RESULTS.md "The suite on 2 CPU cores"):
 # the small network with each task in its own box, the yaw scan, and a gentler learning rate decayed over 6000 steps.
 PRESETS["suite"] = PRESETS["small"] | {
+    # Measured on Lift + Stack with `small` only (docs/learning.md "The proprio FiLM"); the suite's and the gpu
+    # preset's runs were all made without it.
+    "proprio_film": False,
     "per_task_bounds": True,
     "yaw_scan_px": 24,
     "optimizer_lr": 3e-3,
@@ -277,6 +286,9 @@ class SigmaConfig(PreTrainedConfig):
     proprio_orientation: bool | None = None
     # With use_proprio: the proprio vector also enters the rotation/gripper/collision MLP. None = from preset.
     proprio_in_heads: bool | None = None
+    # With use_proprio: the proprio vector also scales and shifts every image token entering fusion
+    # (network.ProprioFiLM), so the heatmap reads the gripper state directly. None = from preset.
+    proprio_film: bool | None = None
     # Channels of the heads' local encoder (network.LocalEncoder: full-resolution dilated convolutions pooled at
     # the keyframe position); 0 = off. None = from preset.
     local_channels: int | None = None

@@ -13,7 +13,8 @@ T = ``img_size // patch_size`` patches per side, D = ``attn_dim``, L = language 
 5. Fusion (``num_fusion_layers``): Linear D -> D on [language, (proprio), queries, image tokens], then full
    self-attention. Query output -> ``fused_feat`` (delta(s_t, l)). Language tokens carry no position here, so
    fusion sees the instruction as a set of contextual token states; with ``lang_film`` (not in the paper) the
-   image tokens are first scaled and shifted by an ordered code of the tokens (:class:`LanguageFiLM`).
+   image tokens are first scaled and shifted by an ordered code of the tokens (:class:`LanguageFiLM`), and with
+   ``proprio_film`` by a linear map of the proprio vector (:class:`ProprioFiLM`).
 6. Decoder: image tokens -> Linear D -> c -> per view conv k at T x T, bilinear x patch_size, conv k, concat ``d0``,
    conv 3x3 -> ``u`` (BV, ``final_dim``, H, W) -> conv 3x3 -> translation logits (B, V, H, W).
 7. Heads: [max over tokens (c*V, channel-major), heatmap-weighted sum of ``u`` (V*final_dim, view-major)] -> MLP
@@ -85,6 +86,11 @@ class NetworkConfig:
     proprio_dim: int = 3
     # The proprio vector also enters the rotation/gripper/collision MLP directly (not only as a fusion token).
     proprio_in_heads: bool = False
+    # Proprio FiLM (not in the paper): every image token entering fusion is also scaled and shifted per channel by
+    # a linear map of the proprio vector (:class:`ProprioFiLM`), so the decoder that draws the heatmap reads the
+    # gripper state directly, not only through attention to the proprio token; RVT-1 concatenates its proprio to
+    # every patch for the same reason (docs/method.md §13).
+    proprio_film: bool = False
     # Local features for the heads (not in the paper; RVT-2 reads rotation at the predicted location of a zoomed
     # stage): ``local_channels`` > 0 adds a full-resolution dilated CNN on each rendered view
     # (:class:`LocalEncoder`), pooled per view by a heatmap (the target's in training, the same Gaussian at the
@@ -159,6 +165,21 @@ class LanguageFiLM(nn.Module):
                 f"LanguageFiLM expects {self.length} language tokens, got {lang_tokens.shape[1]}"
             )
         gamma, beta = self.out(self.token_proj(lang_tokens).flatten(1)).unsqueeze(1).chunk(2, dim=-1)
+        return img * (1 + gamma) + beta
+
+
+class ProprioFiLM(nn.Module):
+    """Proprio vector (B, P) -> per-channel scale and shift of image tokens: ``img * (1 + gamma) + beta``. Zero
+    initialised, so it starts as the identity and the proprio token's route is unchanged at step 0."""
+
+    def __init__(self, proprio_dim: int, dim: int):
+        super().__init__()
+        self.out = nn.Linear(proprio_dim, 2 * dim)
+        nn.init.zeros_(self.out.weight)
+        nn.init.zeros_(self.out.bias)
+
+    def forward(self, proprio: Tensor, img: Tensor) -> Tensor:
+        gamma, beta = self.out(proprio.to(img.dtype)).unsqueeze(1).chunk(2, dim=-1)
         return img * (1 + gamma) + beta
 
 
@@ -246,6 +267,7 @@ class SigmaNetwork(nn.Module):
 
         self.lang_preprocess = DenseBlock(lang_token_dim, d, norm=True)
         self.proprio_preprocess = DenseBlock(cfg.proprio_dim, d) if cfg.use_proprio else None
+        self.proprio_film = ProprioFiLM(cfg.proprio_dim, d) if cfg.use_proprio and cfg.proprio_film else None
         self.lang_film = (
             LanguageFiLM(lang_token_dim, lang_length, d, cfg.lang_film_code_dim) if cfg.lang_film else None
         )
@@ -375,6 +397,8 @@ class SigmaNetwork(nn.Module):
         n_prefix = sum(p.shape[1] for p in prefix)
         if self.lang_film is not None:
             img = self.lang_film(lang_tokens, img)
+        if self.proprio_film is not None:
+            img = self.proprio_film(proprio, img)
         seq = self.fc_bef_fusion(torch.cat([*prefix, query, img], dim=1))
         for layer in self.fusion_layers:
             seq = layer(seq)

@@ -258,6 +258,25 @@ def test_checkpoint_saved_without_film_loads_without_it(tiny_root, tmp_path, cap
     torch.testing.assert_close(loaded.select_action(pre(dict(obs))), before)
 
 
+def test_checkpoint_saved_without_proprio_film_loads_without_it(tiny_root, tmp_path, caplog):
+    """A checkpoint whose config asks for ``proprio_film`` (as a later preset may) but whose weights have none
+    loads without the module, and acts as saved."""
+    import json
+
+    _, policy, pre, _, _ = build(tiny_root, use_proprio=True, proprio_film=False)
+    policy.eval()
+    obs = single_observation(tiny_root, 4)
+    before = policy.select_action(pre(dict(obs)))
+    policy.save_pretrained(tmp_path)
+    config = json.loads((tmp_path / "config.json").read_text())
+    (tmp_path / "config.json").write_text(json.dumps(config | {"proprio_film": True}))
+    with caplog.at_level("WARNING"):
+        loaded = SigmaPolicy.from_pretrained(tmp_path)
+    assert "no proprio-FiLM weights" in caplog.text
+    assert loaded.network.proprio_film is None and loaded.config.proprio_film is False
+    torch.testing.assert_close(loaded.select_action(pre(dict(obs))), before)
+
+
 def test_depth_unit_mismatch_is_reported(tiny_root):
     _, policy, pre, _, ds = build(tiny_root, depth_unit="m")  # the dataset returns millimetres
     with pytest.raises(ValueError, match="depth_unit"):

@@ -187,6 +187,9 @@ def test_config_presets_and_overrides():
         0,
     )
     assert small.network_config().lang_film and not paper.network_config().lang_film
+    assert small.network_config().proprio_film and not paper.network_config().proprio_film
+    suite = SigmaConfig(preset="suite", device="cpu")
+    assert not suite.network_config().proprio_film  # measured with `small` only
 
 
 @pytest.mark.parametrize("activation", ["relu", "leaky_relu"])
@@ -286,6 +289,27 @@ def test_proprio_in_heads_widens_the_head_input():
     proprio = torch.randn(2, 12, requires_grad=True)
     net(img, tok, proprio=proprio).rot_logits.sum().backward()
     assert proprio.grad.abs().sum() > 0
+
+
+def test_proprio_film_starts_as_identity_then_lets_the_heatmap_read_the_proprio():
+    """Zero-initialised, the proprio FiLM leaves the network as it was; its weights get gradients from the
+    translation loss alone, and once they are non-zero the heatmap changes with the proprio vector."""
+    base = dataclasses.replace(SMALL, use_proprio=True, proprio_dim=3)
+    film = SigmaNetwork(dataclasses.replace(base, proprio_film=True), lang_token_dim=12, lang_sentence_dim=12)
+    plain = SigmaNetwork(base, lang_token_dim=12, lang_sentence_dim=12)
+    plain.load_state_dict({k: v for k, v in film.state_dict().items() if not k.startswith("proprio_film.")})
+    assert plain.proprio_film is None
+    img, tok, *_ = inputs(base)
+    proprio = torch.tensor([[1.0, 0.04, -0.04], [0.0, 0.0, 0.0]])
+    with torch.no_grad():
+        assert torch.allclose(film(img, tok, proprio=proprio).trans, plain(img, tok, proprio=proprio).trans)
+    film(img, tok, proprio=proprio).trans.square().sum().backward()
+    assert film.proprio_film.out.weight.grad.abs().sum() > 0
+    with torch.no_grad():
+        film.proprio_film.out.weight.normal_()
+        swapped = proprio.flip(0)
+        a, b = film(img, tok, proprio=proprio).trans, film(img, tok, proprio=swapped).trans
+    assert not torch.allclose(a, b, atol=1e-4)
 
 
 def test_yaw_scan_adds_to_the_yaw_logits_only_and_follows_the_given_centre():
