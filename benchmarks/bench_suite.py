@@ -40,6 +40,7 @@ from __future__ import annotations
 
 import json
 import os
+import re
 import sys
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -133,12 +134,21 @@ class SuiteBenchConfig:
 
     def run_dir(self, seed: int) -> Path:
         """Where training seed ``seed`` of this schedule trains, is diagnosed and is evaluated (a batch other than
-        the suite's 8 and a preset other than ``suite`` are named: ``..._batch64_gpu``)."""
+        the suite's 8, a preset other than ``suite`` and ``policy_args`` other than ``SUITE_ARGS`` are named:
+        ``..._batch64_gpu_proprio_film-true``), so runs that share a collection never share a directory."""
         batch = "" if self.batch_size == 8 else f"_batch{self.batch_size}"
         preset = "" if self.preset == "suite" else f"_{self.preset}"
-        return (
-            self.output_dir / "runs" / f"seed{seed}_decay{self.decay_steps}_lr{self.peak_lr:g}{batch}{preset}"
-        )
+        name = f"seed{seed}_decay{self.decay_steps}_lr{self.peak_lr:g}{batch}{preset}{self._args_tag()}"
+        return self.output_dir / "runs" / name
+
+    def _args_tag(self) -> str:
+        """``policy_args`` beyond ``SUITE_ARGS`` as ``_name-value``, and ``SUITE_ARGS`` left out as ``_without-name``."""
+        added = [a for a in self.policy_args if a not in SUITE_ARGS]
+        dropped = [a for a in SUITE_ARGS if a not in self.policy_args]
+        words = [a.removeprefix("--policy.") for a in added] + [
+            "without-" + a.removeprefix("--policy.").split("=")[0] for a in dropped
+        ]
+        return "".join("_" + re.sub(r"[^A-Za-z0-9._,-]+", "", w.replace("=", "-", 1)) for w in words)
 
     def train_run(self, seed: int, train_root: Path) -> TrainRun:
         """The ``lerobot-train`` run of training seed ``seed`` on the dataset at ``train_root``."""

@@ -7,7 +7,7 @@ import json
 import draccus
 import pytest
 
-from benchmarks.bench_suite import SuiteBenchConfig, markdown
+from benchmarks.bench_suite import SUITE_ARGS, SuiteBenchConfig, markdown
 from benchmarks.training_runs import collect_train_and_heldout
 from pipelines.collecting import demonstration_config
 
@@ -66,6 +66,13 @@ def test_learning_rate_option_reaches_lerobot_train_and_the_table():
     gpu = SuiteBenchConfig(tasks=["lift"], preset="gpu", batch_size=64, steps=3000)
     # Not the suite network's batch-64 run:
     assert gpu.run_dir(0).name == "seed0_decay3000_lr0.003_batch64_gpu"
+    # Runs that differ only in their policy options share a collection, not a directory:
+    film = SuiteBenchConfig(tasks=["lift"], policy_args=[*SUITE_ARGS, "--policy.proprio_film=true"])
+    assert film.run_dir(0).name == "seed0_decay6000_lr0.003_proprio_film-true"
+    boxed = SuiteBenchConfig(tasks=["lift"], policy_args=["--policy.scene_bounds=[-0.2,0.2]"])
+    assert (
+        boxed.run_dir(0).name == "seed0_decay6000_lr0.003_scene_bounds--0.2,0.2_without-use_cpu_bf16_autocast"
+    )
     tuned = SuiteBenchConfig(tasks=["lift"], lr=1e-3)
     assert tuned.schedule_args == ["--policy.scheduler_decay_steps=6000", "--policy.optimizer_lr=0.001"]
 
