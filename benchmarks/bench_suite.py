@@ -142,7 +142,8 @@ class SuiteBenchConfig:
         return self.output_dir / "runs" / name
 
     def _args_tag(self) -> str:
-        """``policy_args`` beyond ``SUITE_ARGS`` as ``_name-value``, and ``SUITE_ARGS`` left out as ``_without-name``."""
+        """``policy_args`` beyond ``SUITE_ARGS`` as ``_name-value``, and ``SUITE_ARGS`` left out as
+        ``_without-name``."""
         added = [a for a in self.policy_args if a not in SUITE_ARGS]
         dropped = [a for a in SUITE_ARGS if a not in self.policy_args]
         words = [a.removeprefix("--policy.") for a in added] + [

@@ -16,10 +16,10 @@ policy``) and the benchmarks' reuse of a saved run (``pipelines/training.py``) r
 ``SigmaConfig``.
 
 **Added modules.** A checkpoint saved before a module existed (``lang_film``, ``local_channels``, the proprio token's
-position and orientation, the proprio input of the heads, ``proprio_film``) has no config field for it, so its config resolves the
-field from today's preset; loading the file into a network with that module would leave the module randomly
-initialised (LeRobot loads non-strictly). :func:`match_saved_modules` turns such fields off, with a warning, from the
-tensors the file holds, and ``SigmaPolicy`` rebuilds its network to match before loading.
+position and orientation, the proprio input of the heads, ``proprio_film``) has no config field for it, so its
+config resolves the field from today's preset; loading the file into a network with that module would leave the
+module randomly initialised (LeRobot loads non-strictly). :func:`match_saved_modules` turns such fields off, with a
+warning, from the tensors the file holds, and ``SigmaPolicy`` rebuilds its network to match before loading.
 """
 
 from __future__ import annotations
