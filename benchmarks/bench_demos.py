@@ -114,12 +114,12 @@ def train_run(cfg: DemosBenchConfig, n: int, train_root: Path, episodes: list[in
 
 
 def run_one(cfg: DemosBenchConfig, n: int, train_root: Path, held_root: Path) -> dict:
-    """Train on ``n`` demonstrations per variation (unless done), diagnose, evaluate (unless done)."""
-    from benchmarks.training_runs import train_diagnose_evaluate
+    """Train on ``n`` demonstrations per variation (unless done), evaluate (unless done), diagnose."""
+    from benchmarks.training_runs import train_evaluate_diagnose
 
     episodes = first_seeds(train_root, n)
     run = train_run(cfg, n, train_root, episodes)
-    done = train_diagnose_evaluate(
+    done = train_evaluate_diagnose(
         run,
         run_dir(cfg, n),
         held_root,

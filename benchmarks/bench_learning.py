@@ -124,8 +124,8 @@ def collect_data(cfg: LearningBenchConfig) -> tuple[Path, Path]:
 
 
 def run_one(cfg: LearningBenchConfig, name: str, args: list[str], train_root: Path, held_root: Path) -> dict:
-    """Train (unless done), diagnose every checkpoint, evaluate closed loop (unless done); return the numbers."""
-    from benchmarks.training_runs import train_diagnose_evaluate
+    """Train (unless done), evaluate closed loop (unless done), diagnose every checkpoint; return the numbers."""
+    from benchmarks.training_runs import train_evaluate_diagnose
     from pipelines.training import TrainRun
     from sigma_data.suite import scene_bounds
 
@@ -141,7 +141,7 @@ def run_one(cfg: LearningBenchConfig, name: str, args: list[str], train_root: Pa
         save_freq=max(1, cfg.steps // cfg.checkpoints),
         extra_args=args,
     )
-    done = train_diagnose_evaluate(
+    done = train_evaluate_diagnose(
         run,
         run_dir,
         held_root,

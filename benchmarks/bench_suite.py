@@ -104,7 +104,7 @@ class SuiteBenchConfig:
     publish: bool = True
     results_dir: Path | None = None
     # The last stage to run: `collect` (the datasets), `train` (and the runs; a machine without robosuite trains
-    # on data collected elsewhere, docs/gpu.md) or `evaluate` (everything: diagnose, closed loop, the table).
+    # on data collected elsewhere, docs/gpu.md) or `evaluate` (everything: closed loop, diagnosis, the table).
     stop_after: str = "evaluate"
 
     def __post_init__(self) -> None:
@@ -200,12 +200,12 @@ def collect_data(cfg: SuiteBenchConfig) -> tuple[Path, Path]:
 
 
 def run_one(cfg: SuiteBenchConfig, seed: int, train_root: Path, held_root: Path) -> dict:
-    """Train with ``seed`` (unless done; resumed if interrupted), diagnose, evaluate (unless done)."""
-    from benchmarks.training_runs import train_diagnose_evaluate
+    """Train with ``seed`` (unless done; resumed if interrupted), evaluate (unless done), diagnose."""
+    from benchmarks.training_runs import train_evaluate_diagnose
 
     run_dir = cfg.run_dir(seed)
     run = cfg.train_run(seed, train_root)
-    done = train_diagnose_evaluate(
+    done = train_evaluate_diagnose(
         run,
         run_dir,
         held_root,

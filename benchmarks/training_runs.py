@@ -12,19 +12,18 @@ from typing import Any
 from pipelines.training import TrainRun
 
 
-def train_diagnose_evaluate(
+def train_evaluate_diagnose(
     run: TrainRun, run_dir: Path, heldout_root: Path, tasks: list[str], label: str, **eval_options: Any
 ) -> dict:
-    """Train ``run`` (its log and wall time in ``run_dir``), diagnose it on its training keyframes and on
-    ``heldout_root``, evaluate it on ``tasks`` (``eval_options``: further ``EvalConfig`` fields), all three on
-    ``run.device``. Returns ``train_seconds``, ``diagnostics`` and ``eval`` (the evaluation summary)."""
+    """Train ``run`` (its log and wall time in ``run_dir``), evaluate it on ``tasks`` (``eval_options``: further
+    ``EvalConfig`` fields), then diagnose it on its training keyframes and on ``heldout_root``, all three on
+    ``run.device``. The closed loop comes first because it is the measurement a GPU lease must bring back before
+    its time ends (docs/gpu.md); the diagnosis can be redone on the CPU machine from the returned checkpoints.
+    Returns ``train_seconds``, ``diagnostics`` and ``eval`` (the evaluation summary)."""
     from pipelines.diagnostics import DiagnoseConfig, run_diagnose
     from pipelines.evaluate import EvalConfig, run_eval
 
     seconds = train_unless_done(run, run_dir, label)
-    diagnostics = run_diagnose(
-        DiagnoseConfig(run=run.output_dir, heldout_root=heldout_root, max_frames=200, device=run.device)
-    )
     results = run_dir / "eval" / "results.json"
     if results.exists():
         summary = json.loads(results.read_text())
@@ -41,6 +40,9 @@ def train_diagnose_evaluate(
             )
         )
         print(f"{label}: evaluated in {time.perf_counter() - t0:.0f} s", flush=True)
+    diagnostics = run_diagnose(
+        DiagnoseConfig(run=run.output_dir, heldout_root=heldout_root, max_frames=200, device=run.device)
+    )
     return {"train_seconds": seconds, "diagnostics": diagnostics, "eval": summary}
 
 

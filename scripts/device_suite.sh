@@ -3,23 +3,37 @@
 #
 # Run there from the checkout's root, with `.device` carried (made here by `python scripts/device_kit.py`):
 #   bash scripts/device_suite.sh --wait 560 -- --preset gpu --tasks '[lift,stack,pick_place,nut_assembly,door]'
+# and, made at once after it, the lease's last call (see --final below):
+#   bash scripts/device_suite.sh --final --wait 200 -- --preset gpu --tasks '[lift,stack,pick_place,nut_assembly,door]'
 # Several runs share the card (and the one collection) when their bench_suite arguments are separated by `---`:
 #   bash scripts/device_suite.sh --wait 560 -- --preset gpu --tasks '[...]' --- --preset gpu --tasks '[...]' --seeds '[1]'
 #
 # The first call unpacks LeRobot, robosuite, MuJoCo and sigma onto PYTHONPATH and the GL loaders onto /, then starts
 # the pipeline in its own session (it outlives the call while the machine is held): one collection with the first
 # run's arguments (`--stop_after collect`), then every run's `python -m benchmarks.bench_suite --device cuda
-# --workers 16 --publish false` at once (training, diagnosis, closed loop). Each call waits up to --wait seconds
+# --workers 16 --publish false` at once (training, closed loop, diagnosis). Each call waits up to --wait seconds
 # and leaves the progress in $OUT/status.txt; a call made while the pipeline runs only waits. Once it has finished,
 # the call also leaves in $OUT the logs and every run's results, diagnostics and last checkpoint (no optimiser
 # state) as one tar in parts of 15 MiB (`python scripts/device_kit.py --command unpack` joins them here). The
 # machine goes back 30 s after a call ends, so a second call must follow the first at once.
+#
+# `--final` marks the lease's last call: if the pipeline has not finished when its wait ends, the call still returns
+# what it has written so far (the logs, each run's results and diagnostics so far, and its latest checkpoint), which
+# the CPU machine can score, instead of leaving it on a machine about to go back. Give that call a --wait that leaves
+# a minute of the lease for the packing and the transfer.
 set -euo pipefail
 cd "$(dirname "$0")/.."
 : "${OUT:?OUT must name the folder whose files come back}"
 wait_s=560
-if [[ "${1:-}" == "--wait" ]]; then wait_s=$2; shift 2; fi
-if [[ "${1:-}" == "--" ]]; then shift; fi
+final=false
+while (($#)); do
+  case $1 in
+    --wait) wait_s=$2; shift 2 ;;
+    --final) final=true; shift ;;
+    --) shift; break ;;
+    *) break ;;
+  esac
+done
 kit=${KIT:-.device}            # what scripts/device_kit.py packed (a test packs elsewhere)
 state=${STATE:-/tmp/sigma_device}  # outlives the call while the machine is held
 suite=$kit/suite
@@ -76,13 +90,20 @@ while [[ ! -f $state/done ]] && (( $(date +%s) - t0 < wait_s )); do sleep 5; don
 for log in "$state"/logs/*.log; do echo "== $log"; tail -n 4 "$log"; done >>"$state/status.txt" 2>/dev/null || true
 cp "$state/status.txt" "$OUT/status.txt"
 if [[ ! -f $state/done ]]; then
-  echo "device_suite: still running after this call's $wait_s s; call again at once"
-  exit 0
+  if ! $final; then
+    echo "device_suite: still running after this call's $wait_s s; call again at once"
+    exit 0
+  fi
+  echo "device_suite: --final: the pipeline is still running; returning what it has written so far" \
+    | tee -a "$OUT/status.txt"
 fi
 
 # The logs, and each run's results, diagnostics, training log and last checkpoint (not its optimiser state).
+mkdir -p "$suite"
+rm -rf "$suite/logs"
 cp -r "$state/logs" "$suite/logs"
 cd "$suite"
+shopt -s nullglob
 files=(logs)
 for run in runs/*/; do
   run=${run%/}
@@ -90,6 +111,12 @@ for run in runs/*/; do
   while IFS= read -r f; do files+=("$f"); done < <(find "$run" -path "$run/train/checkpoints" -prune -o -type f -print)
   if [[ -L $last ]]; then files+=("$last" "$run/train/checkpoints/$(readlink "$last")/pretrained_model"); fi
 done
-tar -cf - "${files[@]}" | split -b 15m - "$OUT/runs.tar.part-"
+# A run still writing may change a file while it is read (tar's exit 1): what was read is still worth returning.
+{ tar -cf - --warning=no-file-changed "${files[@]}" || (($? == 1)); } | split -b 15m - "$OUT/runs.tar.part-"
 ls -la "$OUT"
-echo "device_suite: done (exit $(cat "$state/done")) after $(( $(date +%s) - $(stat -c %Y "$state/started") )) s"
+took=$(( $(date +%s) - $(stat -c %Y "$state/started") ))
+if [[ -f $state/done ]]; then
+  echo "device_suite: done (exit $(cat "$state/done")) after $took s"
+else
+  echo "device_suite: partial, returned after $took s with the pipeline still running"
+fi

@@ -119,7 +119,11 @@ PYTHON_WITHOUT_SITE = '#!/bin/sh\nexec {python} -S "$@"\n'
 def test_the_suite_runs_where_only_the_gpu_image_and_the_kit_are_installed(tmp_path: Path) -> None:
     """The round trip on this CPU: pack a kit; run scripts/device_suite.sh with python3 seeing only the GPU image's
     distributions (those installed here, linked into a folder of their own) and the kit, as the machine would
-    (collection, training, diagnosis and closed loop of a tiny Lift run, over two calls); unpack what it returned."""
+    (collection, training, diagnosis and closed loop of a tiny Lift run, over two calls, with a `--final` call
+    between them that returns what the unfinished pipeline has so far); unpack what each returned.
+
+    ``SIGMA_IMAGE_VERSIONS`` may name a folder of the image's own versions of the shared distributions (installed
+    with ``pip install --target``; docs/gpu.md), put before this environment's on the path."""
     import importlib.metadata as metadata
 
     image = tmp_path / "image"
@@ -145,7 +149,8 @@ def test_the_suite_runs_where_only_the_gpu_image_and_the_kit_are_installed(tmp_p
     out.mkdir()
     env = {
         "PATH": f"{bin_dir}:/usr/bin:/bin:/usr/sbin:/sbin", "HOME": str(tmp_path), "OUT": str(out),
-        "PYTHONPATH": str(image), "KIT": str(pack), "STATE": str(tmp_path / "state"),
+        "PYTHONPATH": os.pathsep.join(filter(None, [os.environ.get("SIGMA_IMAGE_VERSIONS"), str(image)])),
+        "KIT": str(pack), "STATE": str(tmp_path / "state"),
     }  # fmt: skip
     suite = [
         "--tasks",
@@ -176,6 +181,18 @@ def test_the_suite_runs_where_only_the_gpu_image_and_the_kit_are_installed(tmp_p
         ["bash", *script, "--wait", "5", "--", *suite], env=env, capture_output=True, text=True
     )
     assert first.returncode == 0 and "still running" in first.stdout, first.stdout + first.stderr
+    # A lease's last call (--final) returns what the unfinished pipeline has written so far: here, its logs.
+    early = tmp_path / "early"
+    early.mkdir()
+    partial = subprocess.run(
+        ["bash", *script, "--final", "--wait", "1", "--", *suite], env={**env, "OUT": str(early)},
+        capture_output=True, text=True,
+    )  # fmt: skip
+    assert "partial, returned after" in partial.stdout, partial.stdout + partial.stderr
+    assert "--final: the pipeline is still running" in (early / "status.txt").read_text()
+    so_far = tmp_path / "so_far"
+    assert kit.main(["--command", "unpack", "--parts", str(early), "--output_dir", str(so_far)]) == 0
+    assert (so_far / "logs" / "collect.log").is_file()
     second = subprocess.run(
         ["bash", *script, "--wait", "900", "--", *suite], env=env, capture_output=True, text=True
     )
