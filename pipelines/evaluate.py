@@ -14,6 +14,9 @@ each with its own policy copy and environments.
 Why a failed episode failed (wrong object, grasp missed, dropped, ...) is read from its keyframe trace by
 ``pipelines/failures.py``; every episode's reason is in ``results.json`` and counted by kind in the table.
 
+A killed evaluation resumes: every finished episode is logged as it ends (``pipelines/episode_log.py``), and the
+same command run again plays only the episodes that are missing.
+
 Example::
 
     sigma-eval --checkpoint outputs/train/checkpoints/last/pretrained_model \\
@@ -38,6 +41,7 @@ import draccus
 from tqdm import tqdm
 
 from pipelines.checkpoints import CheckpointError, check_checkpoint, load_policy
+from pipelines.episode_log import EpisodeLog, weights_digest
 from pipelines.failures import (
     failure_kind,
     failure_reason,
@@ -407,26 +411,54 @@ def run_eval(cfg: EvalConfig) -> dict:
     jobs = plan_jobs(cfg)
     cfg.output_dir = Path(cfg.output_dir)
     cfg.output_dir.mkdir(parents=True, exist_ok=True)
+    # A previous run's results are replaced at the end; meanwhile nothing should take them for this run's.
+    for name in ("results.json", "results.md"):
+        (cfg.output_dir / name).unlink(missing_ok=True)
+    log, results = _resume(cfg, jobs)
+    finished = {(r.task, r.variation, r.seed) for r in results}
+    todo = [j for j in jobs if (j.task, j.variation, j.seed) not in finished]
     start = time.perf_counter()
-    results: list[EpisodeResult] = []
-    bar = tqdm(total=len(jobs), desc="sigma-eval", unit="episode")
-    workers = min(cfg.workers, len(jobs))
+    bar = tqdm(total=len(jobs), initial=len(results), desc="sigma-eval", unit="episode")
+    workers = min(cfg.workers, len(todo))
     if workers == 1:
         _init_worker(cfg)
-        for job in jobs:
+        for job in todo:
             results.append(_run_job(job))
+            log.append(results[-1])
             bar.update()
-    else:
+    elif workers > 1:
         with mp.get_context("spawn").Pool(workers, initializer=_init_worker, initargs=(cfg,)) as pool:
-            for result in pool.imap_unordered(_run_job, jobs):
+            for result in pool.imap_unordered(_run_job, todo):
                 results.append(result)
+                log.append(result)
                 bar.update()
     bar.close()
     summary = summarise(results, cfg)
     summary["seconds"] = time.perf_counter() - start
-    (cfg.output_dir / "results.json").write_text(json.dumps(summary, indent=2))
+    summary["resumed_episodes"] = len(jobs) - len(todo)
     (cfg.output_dir / "results.md").write_text(markdown_table(summary) + "\n")
+    tmp = cfg.output_dir / "results.json.tmp"
+    tmp.write_text(json.dumps(summary, indent=2))
+    tmp.replace(cfg.output_dir / "results.json")
+    log.remove()
     return summary
+
+
+def _resume(cfg: EvalConfig, jobs: list[Job]) -> tuple[EpisodeLog, list[EpisodeResult]]:
+    """The episode log of this evaluation and the planned episodes a killed run of it already finished
+    (``pipelines/episode_log.py``): the same weights, keyframe budget and test-time options."""
+    header = {
+        "weights_sha256": weights_digest(cfg.checkpoint),
+        "max_keyframes": cfg.max_keyframes,
+        "tta_yaw_deg": cfg.tta_yaw_deg,
+        "instruction_contrast": cfg.instruction_contrast,
+    }
+    log = EpisodeLog(cfg.output_dir, header)
+    planned = {(j.task, j.variation, j.seed) for j in jobs}
+    done = [r for r in log.resume(lambda d: EpisodeResult(**d)) if (r.task, r.variation, r.seed) in planned]
+    if done:
+        print(f"sigma-eval: resuming {cfg.output_dir}: {len(done)} of {len(jobs)} episodes already finished")
+    return log, done
 
 
 def main(argv: list[str] | None = None) -> int:
