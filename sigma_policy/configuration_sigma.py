@@ -97,7 +97,8 @@ Paper-vs-code discrepancies (docs/method.md §13), each a field; default and rea
     the goal term's q and g minus their batch mean before the L2 normalisation (sigma_policy/contrastive.py). On
     the tiny test scenes it takes the goal term from a stall near log 4 to about 0 in 150 steps; on Lift + Stack
     at 1500 CPU steps centring all four features changed no closed-loop success (48/90 against 48/90, single
-    runs; docs/learning.md "Centred contrastive features"), so the presets keep the paper's form.
+    runs; docs/learning.md "Centred contrastive features"), nor did the goal term alone on the five tasks (60/200
+    against 60 and 62; "Centred goal features on the five tasks"), so the presets keep the paper's form.
 
 Inputs per camera ``<cam>`` in ``cameras`` (all cameras that have them when ``cameras`` is empty):
 ``observation.images.<cam>`` (RGB in [0,1]), ``observation.images.<cam>_depth`` (depth, unit ``depth_unit``),
