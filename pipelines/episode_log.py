@@ -13,6 +13,7 @@ import hashlib
 import json
 import logging
 from collections.abc import Callable
+from dataclasses import asdict, is_dataclass
 from pathlib import Path
 from typing import Any
 
@@ -69,10 +70,9 @@ class EpisodeLog:
             f.write(json.dumps(_as_dict(result)) + "\n")
 
     def remove(self) -> None:
+        """Drop the log once the evaluation's ``results.json`` is written."""
         self.path.unlink(missing_ok=True)
 
 
 def _as_dict(result: Any) -> dict:
-    from dataclasses import asdict, is_dataclass
-
     return asdict(result) if is_dataclass(result) else dict(result)
