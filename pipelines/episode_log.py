@@ -9,32 +9,23 @@ evaluation has written ``results.json`` the log is removed: a finished evaluatio
 
 from __future__ import annotations
 
-import hashlib
 import json
 import logging
 from collections.abc import Callable
-from dataclasses import asdict, is_dataclass
+from dataclasses import asdict
 from pathlib import Path
 from typing import Any
 
-__all__ = ["LOG_NAME", "EpisodeLog", "weights_digest"]
+__all__ = ["LOG_NAME", "EpisodeLog"]
 
 LOG_NAME = "episodes.jsonl"
 _FORMAT = 1
 logger = logging.getLogger(__name__)
 
 
-def weights_digest(checkpoint: Path) -> str:
-    """SHA-256 of the checkpoint's ``model.safetensors``: the same weights wherever the folder was copied to."""
-    sha = hashlib.sha256()
-    with open(Path(checkpoint) / "model.safetensors", "rb") as f:
-        for block in iter(lambda: f.read(1 << 20), b""):
-            sha.update(block)
-    return sha.hexdigest()
-
-
 class EpisodeLog:
-    """Append-only record of finished episodes under ``output_dir``, keyed by ``header`` (a JSON-able dict)."""
+    """Append-only record of finished episodes (dataclasses) under ``output_dir``, keyed by ``header`` (a JSON-able
+    dict)."""
 
     def __init__(self, output_dir: Path, header: dict[str, Any]):
         self.path = Path(output_dir) / LOG_NAME
@@ -60,19 +51,15 @@ class EpisodeLog:
                         logger.warning("%s:%d: skipped (%s)", self.path, number, e)
         self.path.parent.mkdir(parents=True, exist_ok=True)
         tmp = self.path.with_suffix(".tmp")
-        tmp.write_text("".join(json.dumps(d) + "\n" for d in [self.header, *map(_as_dict, finished)]))
+        tmp.write_text("".join(json.dumps(d) + "\n" for d in [self.header, *map(asdict, finished)]))
         tmp.replace(self.path)
         return finished
 
     def append(self, result: Any) -> None:
         """Record one finished episode (flushed, so a kill after this call keeps it)."""
         with open(self.path, "a") as f:
-            f.write(json.dumps(_as_dict(result)) + "\n")
+            f.write(json.dumps(asdict(result)) + "\n")
 
     def remove(self) -> None:
         """Drop the log once the evaluation's ``results.json`` is written."""
         self.path.unlink(missing_ok=True)
-
-
-def _as_dict(result: Any) -> dict:
-    return asdict(result) if is_dataclass(result) else dict(result)

@@ -41,7 +41,7 @@ import draccus
 from tqdm import tqdm
 
 from pipelines.checkpoints import CheckpointError, check_checkpoint, load_policy
-from pipelines.episode_log import EpisodeLog, weights_digest
+from pipelines.episode_log import EpisodeLog
 from pipelines.failures import (
     failure_kind,
     failure_reason,
@@ -414,9 +414,7 @@ def run_eval(cfg: EvalConfig) -> dict:
     # A previous run's results are replaced at the end; meanwhile nothing should take them for this run's.
     for name in ("results.json", "results.md"):
         (cfg.output_dir / name).unlink(missing_ok=True)
-    log, results = _resume(cfg, jobs)
-    finished = {(r.task, r.variation, r.seed) for r in results}
-    todo = [j for j in jobs if (j.task, j.variation, j.seed) not in finished]
+    log, results, todo = _resume(cfg, jobs)
     start = time.perf_counter()
     bar = tqdm(total=len(jobs), initial=len(results), desc="sigma-eval", unit="episode")
     workers = min(cfg.workers, len(todo))
@@ -444,21 +442,24 @@ def run_eval(cfg: EvalConfig) -> dict:
     return summary
 
 
-def _resume(cfg: EvalConfig, jobs: list[Job]) -> tuple[EpisodeLog, list[EpisodeResult]]:
-    """The episode log of this evaluation and the planned episodes a killed run of it already finished
-    (``pipelines/episode_log.py``): the same weights, keyframe budget and test-time options."""
+def _resume(cfg: EvalConfig, jobs: list[Job]) -> tuple[EpisodeLog, list[EpisodeResult], list[Job]]:
+    """The episode log of this evaluation, the planned episodes a killed run of it already finished
+    (``pipelines/episode_log.py``: the same weights, keyframe budget and test-time options), and the jobs left."""
+    from sigma_data.collect.manifest import sha256
+
+    # The weights by content: the same wherever the checkpoint was copied to (a GPU lease's, unpacked here).
     header = {
-        "weights_sha256": weights_digest(cfg.checkpoint),
+        "weights_sha256": sha256(Path(cfg.checkpoint) / "model.safetensors"),
         "max_keyframes": cfg.max_keyframes,
         "tta_yaw_deg": cfg.tta_yaw_deg,
         "instruction_contrast": cfg.instruction_contrast,
     }
     log = EpisodeLog(cfg.output_dir, header)
-    planned = {(j.task, j.variation, j.seed) for j in jobs}
-    done = [r for r in log.resume(lambda d: EpisodeResult(**d)) if (r.task, r.variation, r.seed) in planned]
+    logged = {Job(r.task, r.variation, r.seed): r for r in log.resume(lambda d: EpisodeResult(**d))}
+    done = [logged[j] for j in jobs if j in logged]
     if done:
         print(f"sigma-eval: resuming {cfg.output_dir}: {len(done)} of {len(jobs)} episodes already finished")
-    return log, done
+    return log, done, [j for j in jobs if j not in logged]
 
 
 def main(argv: list[str] | None = None) -> int:

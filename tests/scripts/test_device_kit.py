@@ -119,7 +119,7 @@ PYTHON_WITHOUT_SITE = '#!/bin/sh\nexec {python} -S "$@"\n'
 def test_the_suite_runs_where_only_the_gpu_image_and_the_kit_are_installed(tmp_path: Path) -> None:
     """The round trip on this CPU: pack a kit; run scripts/device_suite.sh with python3 seeing only the GPU image's
     distributions (those installed here, linked into a folder of their own) and the kit, as the machine would
-    (collection, training, diagnosis and closed loop of a tiny Lift run, over two calls, with a `--final` call
+    (collection, training, closed loop and diagnosis of a tiny Lift run, over two calls, with a `--final` call
     between them that returns what the unfinished pipeline has so far); unpack what each returned.
 
     ``SIGMA_IMAGE_VERSIONS`` may name a folder of the image's own versions of the shared distributions (installed
@@ -188,6 +188,7 @@ def test_the_suite_runs_where_only_the_gpu_image_and_the_kit_are_installed(tmp_p
         ["bash", *script, "--final", "--wait", "1", "--", *suite], env={**env, "OUT": str(early)},
         capture_output=True, text=True,
     )  # fmt: skip
+    assert partial.returncode == 0, partial.stdout + partial.stderr
     assert "partial, returned after" in partial.stdout, partial.stdout + partial.stderr
     assert "--final: the pipeline is still running" in (early / "status.txt").read_text()
     so_far = tmp_path / "so_far"
