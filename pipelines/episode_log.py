@@ -16,6 +16,8 @@ from dataclasses import asdict
 from pathlib import Path
 from typing import Any
 
+from sigma_data.files import write_text_atomic
+
 __all__ = ["LOG_NAME", "EpisodeLog"]
 
 LOG_NAME = "episodes.jsonl"
@@ -49,10 +51,9 @@ class EpisodeLog:
                         finished.append(parse(json.loads(line)))
                     except (json.JSONDecodeError, TypeError) as e:  # cut short by a kill, or not an episode
                         logger.warning("%s:%d: skipped (%s)", self.path, number, e)
-        self.path.parent.mkdir(parents=True, exist_ok=True)
-        tmp = self.path.with_suffix(".tmp")
-        tmp.write_text("".join(json.dumps(d) + "\n" for d in [self.header, *map(asdict, finished)]))
-        tmp.replace(self.path)
+        write_text_atomic(
+            self.path, "".join(json.dumps(d) + "\n" for d in [self.header, *map(asdict, finished)])
+        )
         return finished
 
     def append(self, result: Any) -> None:

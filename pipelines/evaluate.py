@@ -2,7 +2,7 @@
 
 Each episode resets a task variation with a seed, then asks the policy for one 9-D keyframe per step and lets
 the :class:`~sigma_data.control.KeyframeExecutor` drive the robot there (``sigma_data.sim_env``), until the
-task's success check passes or ``max_keyframes`` keyframes were taken. The observation goes through the same
+task's success check passes or ``max_keyframes`` keyframes were taken (one episode: ``pipelines/rollout.py``). The observation goes through the same
 LeRobot path as ``lerobot-eval`` (``preprocess_observation`` → the checkpoint's saved pre-processor →
 ``select_action`` → post-processor), so numbers agree with it.
 
@@ -26,7 +26,6 @@ Example::
 from __future__ import annotations
 
 import json
-import logging
 import math
 import multiprocessing as mp
 import os
@@ -35,22 +34,15 @@ import time
 from collections import Counter, defaultdict
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
-from typing import Any
 
 import draccus
 from tqdm import tqdm
 
-from pipelines.checkpoints import CheckpointError, check_checkpoint, load_policy
+from pipelines.checkpoints import CheckpointError, check_checkpoint
 from pipelines.episode_log import EpisodeLog
-from pipelines.failures import (
-    failure_kind,
-    failure_reason,
-    grasp_fit,
-    nearest_variation,
-    other_variation_done,
-)
-
-logger = logging.getLogger(__name__)
+from pipelines.failures import failure_kind
+from pipelines.rollout import EpisodeResult, Job, init_worker, run_job
+from sigma_data.files import write_json_atomic
 
 
 @dataclass
@@ -86,32 +78,6 @@ class EvalConfig:
     instruction_contrast: float | None = None
 
 
-@dataclass(frozen=True)
-class Job:
-    task: str
-    variation: str
-    seed: int
-
-
-@dataclass
-class EpisodeResult:
-    task: str
-    variation: str
-    seed: int
-    success: bool
-    keyframes: int
-    control_steps: int
-    seconds: float
-    recording: str | None = None
-    error: str | None = None
-    # Why a failed episode failed (see :func:`failure_reason`); None on success.
-    failure: str | None = None
-    # One entry per keyframe taken: the action, how the arm move ended, the finger gap after it.
-    trace: list[dict] = field(default_factory=list)
-    # A failed episode that ended in another variation's success state (e.g. the other stacking order).
-    other_variation: str | None = None
-
-
 def wilson_interval(successes: int, n: int, z: float = 1.96) -> tuple[float, float]:
     """Wilson score 95% interval of a binomial rate (sound for small n and rates near 0 or 1)."""
     if n == 0:
@@ -145,182 +111,6 @@ def plan_jobs(cfg: EvalConfig) -> list[Job]:
             )
     # Interleave variations so partial results stay balanced and workers share the load evenly.
     return [Job(t, v, s) for s in seeds for t, v in pairs]
-
-
-class _Worker:
-    """One process: a policy copy, its processors, and a cached environment per variation."""
-
-    def __init__(self, cfg: EvalConfig):
-        import torch
-
-        import sigma_data.lerobot_env  # noqa: F401  (registers the env type, as the plugin shim does)
-
-        torch.set_num_threads(max(1, (os.cpu_count() or 1) // max(1, cfg.workers)))
-        self.cfg = cfg
-        self.policy, self.pre, self.post = load_policy(cfg.checkpoint, cfg.device)
-        if cfg.tta_yaw_deg is not None:  # checked in run_eval
-            self.policy.config.tta_yaw_deg = [float(a) for a in cfg.tta_yaw_deg]
-        if cfg.instruction_contrast is not None:  # checked in run_eval
-            self.policy.config.instruction_contrast = cfg.instruction_contrast
-            if not self.policy.config.instruction_tasks and cfg.train_dataset is not None:
-                from sigma_data.contract import recorded_instruction_tasks
-
-                self.policy.config.instruction_tasks = recorded_instruction_tasks(cfg.train_dataset)
-        self.cameras = tuple(self.policy.config.camera_names())
-        self.image_size = self._image_size()
-        self.envs: dict[str, Any] = {}
-
-    def _image_size(self) -> int:
-        feature = self.policy.config.input_features[self.policy.config.camera_keys(self.cameras[0])["rgb"]]
-        return int(feature.shape[-1])
-
-    def close(self) -> None:
-        """Close the cached envs (each frees its render context in its own GL context)."""
-        while self.envs:
-            self.envs.popitem()[1].close()
-
-    def env(self, task: str, variation: str):
-        from sigma_data.sim_env import SigmaRobosuiteEnv
-
-        key = f"{task}:{variation}"
-        if key not in self.envs:
-            self.envs[key] = SigmaRobosuiteEnv(
-                key,
-                cameras=self.cameras,
-                image_size=self.image_size,
-                depth_unit=self.policy.config.depth_unit,
-            )
-        return self.envs[key]
-
-    def act(self, obs: dict, instruction: str):
-        import numpy as np
-        import torch
-        from lerobot.envs.utils import preprocess_observation
-
-        batch = preprocess_observation({k: _batched(v) for k, v in obs.items()})
-        batch["task"] = [instruction]
-        with torch.inference_mode():
-            action = self.policy.select_action(self.pre(batch))
-        return np.asarray(self.post(action).cpu().numpy()[0], dtype=np.float64)
-
-    def run(self, job: Job) -> EpisodeResult:
-        env = self.env(job.task, job.variation)
-        start = time.perf_counter()
-        rec = None
-        recording = None
-        if self.cfg.rerun:
-            rec, recording = self._open_recording(job)
-        obs, _ = env.reset(seed=job.seed)
-        self.policy.reset()
-        success, steps, k, error = False, 0, 0, None
-        trace: list[dict] = []
-        was_open = True
-        try:
-            for k in range(1, self.cfg.max_keyframes + 1):
-                action = self.act(obs, env.task_description)
-                if rec is not None:
-                    self._log_step(rec, env.task_description, k)
-                obs, _, terminated, _, info = env.step(action)
-                steps += info["control_steps"]
-                success = bool(info["is_success"])
-                now_open = bool(action[7] > 0.5)
-                fingers = obs["agent_pos"][8:10]
-                near = nearest_variation(env)
-                trace.append(
-                    {
-                        "keyframe": k,
-                        "action": [round(float(a), 4) for a in action],
-                        "arm_status": info["arm_status"],
-                        "closed_now": was_open and not now_open,
-                        "opened_now": now_open and not was_open,
-                        "finger_gap_m": round(float(abs(fingers[0]) + abs(fingers[1])), 4),
-                    }
-                    | near
-                    | grasp_fit(env, near.get("nearest", job.variation))
-                    | ({"progress": env.task.progress(env.env)} if env.task.progress else {})
-                )
-                was_open = now_open
-                if terminated:
-                    break
-        except Exception as exc:  # a bad action or a simulator error fails this episode, not the run
-            logger.exception("episode %s failed", job)
-            success, error = False, repr(exc)
-        finally:
-            if rec is not None:
-                rec.flush()
-                rec.disconnect()
-        result = EpisodeResult(
-            job.task,
-            job.variation,
-            job.seed,
-            success,
-            k,
-            steps,
-            time.perf_counter() - start,
-            recording,
-            error,
-            trace=trace,
-        )
-        if not success and error is None:
-            result.other_variation = other_variation_done(env)
-        result.failure = failure_reason(result, self.cfg.max_keyframes)
-        return result
-
-    def _open_recording(self, job: Job):
-        from pipelines.viz.blueprints import policy_blueprint
-        from pipelines.viz.cli import ViewerDelivery, open_recording
-        from sigma_policy.renderer import VIEW_NAMES
-
-        path = self.cfg.output_dir / "rollouts" / f"{job.task}_{job.variation}_seed{job.seed}.rrd"
-        rec = open_recording(
-            f"sigma-eval/{job.task}/{job.variation}/{job.seed}",
-            ViewerDelivery(save=path),
-            policy_blueprint(list(VIEW_NAMES)),
-        )
-        return rec, str(path)
-
-    def _log_step(self, rec, instruction: str, step: int) -> None:
-        """Log the policy's last decision (views, heatmaps, prediction, cloud) at ``step`` of the rollout."""
-        from pipelines.viz.policy import log_policy_frame, prediction_frame
-
-        pred = self.policy.last_prediction
-        if pred is not None:
-            log_policy_frame(rec, **prediction_frame(self.policy, pred, instruction), step=step)
-
-
-def _batched(value):
-    import numpy as np
-
-    if isinstance(value, dict):
-        return {k: _batched(v) for k, v in value.items()}
-    return np.asarray(value)[None]
-
-
-_WORKER: _Worker | None = None
-
-
-_WORKER_ERROR: BaseException | None = None
-
-
-def _init_worker(cfg: EvalConfig) -> None:
-    # An exception here would make multiprocessing.Pool replace the worker forever (a hang): keep it and raise
-    # it from the first job instead, which ends the evaluation with that error.
-    global _WORKER, _WORKER_ERROR
-    logging.basicConfig(level=logging.WARNING)
-    if _WORKER is not None:  # a second evaluation in this process (workers=1): the last one's envs go first
-        _WORKER.close()
-        _WORKER = None
-    try:
-        _WORKER = _Worker(cfg)
-    except Exception as e:
-        _WORKER_ERROR = e
-
-
-def _run_job(job: Job) -> EpisodeResult:
-    if _WORKER_ERROR is not None:
-        raise RuntimeError(f"an evaluation worker could not start: {_WORKER_ERROR}") from _WORKER_ERROR
-    assert _WORKER is not None
-    return _WORKER.run(job)
 
 
 def summarise(results: list[EpisodeResult], cfg: EvalConfig) -> dict:
@@ -419,14 +209,14 @@ def run_eval(cfg: EvalConfig) -> dict:
     bar = tqdm(total=len(jobs), initial=len(results), desc="sigma-eval", unit="episode")
     workers = min(cfg.workers, len(todo))
     if workers == 1:
-        _init_worker(cfg)
+        init_worker(cfg)
         for job in todo:
-            results.append(_run_job(job))
+            results.append(run_job(job))
             log.append(results[-1])
             bar.update()
     elif workers > 1:
-        with mp.get_context("spawn").Pool(workers, initializer=_init_worker, initargs=(cfg,)) as pool:
-            for result in pool.imap_unordered(_run_job, todo):
+        with mp.get_context("spawn").Pool(workers, initializer=init_worker, initargs=(cfg,)) as pool:
+            for result in pool.imap_unordered(run_job, todo):
                 results.append(result)
                 log.append(result)
                 bar.update()
@@ -435,9 +225,7 @@ def run_eval(cfg: EvalConfig) -> dict:
     summary["seconds"] = time.perf_counter() - start
     summary["resumed_episodes"] = len(jobs) - len(todo)
     (cfg.output_dir / "results.md").write_text(markdown_table(summary) + "\n")
-    tmp = cfg.output_dir / "results.json.tmp"
-    tmp.write_text(json.dumps(summary, indent=2))
-    tmp.replace(cfg.output_dir / "results.json")
+    write_json_atomic(cfg.output_dir / "results.json", summary, indent=2)
     log.remove()
     return summary
 
@@ -445,7 +233,7 @@ def run_eval(cfg: EvalConfig) -> dict:
 def _resume(cfg: EvalConfig, jobs: list[Job]) -> tuple[EpisodeLog, list[EpisodeResult], list[Job]]:
     """The episode log of this evaluation, the planned episodes a killed run of it already finished
     (``pipelines/episode_log.py``: the same weights, keyframe budget and test-time options), and the jobs left."""
-    from sigma_data.collect.manifest import sha256
+    from sigma_data.files import sha256
 
     # The weights by content: the same wherever the checkpoint was copied to (a GPU lease's, unpacked here).
     header = {

@@ -13,7 +13,7 @@ import math
 from typing import TYPE_CHECKING
 
 if TYPE_CHECKING:
-    from pipelines.evaluate import EpisodeResult
+    from pipelines.rollout import EpisodeResult
 
 # Panda fingers: each joint travels 0..0.04 m; a closed gripper whose gap is below this holds nothing.
 EMPTY_GRIP_GAP_M = 0.01

@@ -141,10 +141,10 @@ class FaultInjectionConfig:
 
 
 def write_json(path: Path, data: Any) -> None:
-    """``path`` written under a temporary name and renamed: a kill leaves the old file or none, never a torn one."""
-    tmp = path.with_name(f".{path.name}.tmp")
-    tmp.write_text(json.dumps(data, indent=1))
-    tmp.replace(path)
+    """``path`` written whole or not at all (sigma_data/files.py): a kill leaves the old file or none."""
+    from sigma_data.files import write_json_atomic
+
+    write_json_atomic(path, data)
 
 
 def read_json(path: Path) -> Any:

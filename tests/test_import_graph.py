@@ -23,9 +23,15 @@ PACKAGES = ("sigma_data", "sigma_policy", "pipelines")
 # Who may import whom: top-level package -> patterns (fnmatch) of the project modules it may import.
 LAYERS = {
     "sigma_data": ("sigma_data", "sigma_data.*"),
-    # the data contract and nothing else of sigma_data (importing it runs sigma_data/__init__.py, which only
-    # chooses MuJoCo's GL backend and quiets robosuite's logger)
-    "sigma_policy": ("sigma_policy", "sigma_policy.*", "sigma_data", "sigma_data.contract"),
+    # the data contract and the standard-library file helpers, nothing else of sigma_data (importing them runs
+    # sigma_data/__init__.py, which only chooses MuJoCo's GL backend and quiets robosuite's logger)
+    "sigma_policy": (
+        "sigma_policy",
+        "sigma_policy.*",
+        "sigma_data",
+        "sigma_data.contract",
+        "sigma_data.files",
+    ),
     "pipelines": ("pipelines", "pipelines.*", "sigma_data", "sigma_data.*", "sigma_policy", "sigma_policy.*"),
 }
 

@@ -12,6 +12,7 @@ from pathlib import Path
 from typing import Any
 
 from sigma_data.cameras import RenderOptions
+from sigma_data.files import temporary_name
 from sigma_data.output import OutputConfig
 from sigma_data.record import check_pregrasp_jitter
 
@@ -20,8 +21,8 @@ MARKER = "shard.json"
 DATASETS = ("dense", "keyframe")
 # The run's record in output.dir: its data options (before the first shard) and, once merged, every ShardResult.
 RECORD = "collect.json"
-# collect.json while it is written (renamed to RECORD when complete).
-RECORD_TMP = f".{RECORD}.tmp"
+# collect.json while it is written (renamed to RECORD when complete; sigma_data/files.py).
+RECORD_TMP = temporary_name(Path(RECORD)).name
 # Options that change how a collection runs, not what it writes: a rerun may change them and still resume.
 RUN_OPTIONS = frozenset(
     {"output.dir", "workers", "render_threads", "executor", "progress", "output.overwrite"}

@@ -13,17 +13,13 @@ collect on 2 cores) hash in 0.26 s together, 0.06% of their collection time (0.1
 
 from __future__ import annotations
 
-import hashlib
 from pathlib import Path
 from typing import Any
 
+from sigma_data.files import sha256
+
 # Dataset files whose rows are frames (a row count is recorded for each and they must add up to the frames).
 DATA_DIR = "data"
-
-
-def sha256(path: Path) -> str:
-    with path.open("rb") as f:
-        return hashlib.file_digest(f, "sha256").hexdigest()
 
 
 def parquet_rows(path: Path) -> int:

@@ -24,6 +24,7 @@ from sigma_data.collect.config import (
 )
 from sigma_data.collect.manifest import damage
 from sigma_data.contract import SIDECAR
+from sigma_data.files import write_json_atomic
 
 
 def plan_shards(cfg: CollectConfig) -> list[ShardSpec]:
@@ -63,9 +64,7 @@ def plan_shards(cfg: CollectConfig) -> list[ShardSpec]:
 def write_record(out: Path, data: dict) -> None:
     """``<out>/collect.json`` written under a temporary name (:data:`RECORD_TMP`) and renamed: a kill mid-write
     leaves the previous record or none, never a torn one that every rerun would fail to read."""
-    tmp = out / RECORD_TMP
-    tmp.write_text(json.dumps(data, indent=1))
-    tmp.replace(out / RECORD)
+    write_json_atomic(out / RECORD, data)
 
 
 def entries(out: Path) -> list[str]:

@@ -18,7 +18,6 @@ from __future__ import annotations
 
 import contextlib
 import dataclasses
-import json
 import queue
 import shutil
 import threading
@@ -35,6 +34,7 @@ from sigma_data.collect.config import DATASETS, MARKER, CollectConfig, ShardResu
 from sigma_data.collect.envs import cached_env, cached_replay
 from sigma_data.collect.manifest import shard_files
 from sigma_data.episode import Episode
+from sigma_data.files import write_json_atomic
 from sigma_data.keyframes import compare_keyframes, discover_keyframes
 from sigma_data.replay_render import RenderedFrames, ReplayRenderer, SceneSnapshot
 from sigma_data.writers import DatasetLayout, DenseWriter, KeyframeWriter, SigmaWriter, shared_frames
@@ -261,7 +261,5 @@ def collect_shard(
     files = shard_files(shard_dir, DATASETS)  # what a rerun checks before it reuses the shard
     result.total_s = time.perf_counter() - start_all
     # Written whole or not at all: a kill mid-write leaves no marker (the shard is redone), never a torn one.
-    tmp = shard_dir / f".{MARKER}.tmp"
-    tmp.write_text(json.dumps({**asdict(result), "files": files}, indent=1))
-    tmp.replace(shard_dir / MARKER)
+    write_json_atomic(shard_dir / MARKER, {**asdict(result), "files": files})
     return result

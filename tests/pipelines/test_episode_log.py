@@ -1,7 +1,7 @@
 """``pipelines/episode_log.py``: a killed ``sigma-eval`` resumes from the episodes it logged, and only under the
 same weights and options.
 
-The bookkeeping is tested here with the episode itself stood in for (``_run_job``): the robosuite rollouts are
+The bookkeeping is tested here with the episode itself stood in for (``run_job``): the robosuite rollouts are
 tested by the demo's quick run (tests/pipelines/test_demo.py), which evaluates from scratch through the same code.
 """
 
@@ -14,7 +14,8 @@ import pytest
 
 import pipelines.evaluate as evaluate
 from pipelines.episode_log import LOG_NAME, EpisodeLog
-from pipelines.evaluate import EpisodeResult, EvalConfig, Job, run_eval
+from pipelines.evaluate import EvalConfig, run_eval
+from pipelines.rollout import EpisodeResult, Job
 from tests.pipelines.checkpoint_fixtures import save_tiny_checkpoint
 from tests.sigma_policy.tiny_dataset import write_tiny_keyframe_dataset
 
@@ -64,8 +65,8 @@ def test_a_killed_evaluation_plays_only_the_missing_episodes(checkpoint: Path, t
         played.append(job.seed)
         return _episode(job.seed, success=job.seed % 2 == 0)
 
-    monkeypatch.setattr(evaluate, "_init_worker", lambda cfg: None)
-    monkeypatch.setattr(evaluate, "_run_job", play)
+    monkeypatch.setattr(evaluate, "init_worker", lambda cfg: None)
+    monkeypatch.setattr(evaluate, "run_job", play)
     cfg = EvalConfig(checkpoint=checkpoint, tasks=["lift"], episodes=4, workers=1, output_dir=tmp_path)
     (tmp_path / "results.json").write_text("{}")  # an earlier run's: not to be taken for this one's
     kill_at = 100_002

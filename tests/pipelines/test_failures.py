@@ -5,8 +5,9 @@ from __future__ import annotations
 
 import pytest
 
-from pipelines.evaluate import EpisodeResult, markdown_table, summarise
+from pipelines.evaluate import markdown_table, summarise
 from pipelines.failures import failure_kind, failure_reason
+from pipelines.rollout import EpisodeResult
 
 
 def _step(

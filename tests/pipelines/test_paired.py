@@ -7,7 +7,7 @@ import math
 
 import pytest
 
-from pipelines.evaluate import EpisodeResult, EvalConfig, summarise
+from pipelines.evaluate import EvalConfig, summarise
 from pipelines.paired import (
     Pairs,
     compare,
@@ -18,6 +18,7 @@ from pipelines.paired import (
     pair_counts,
     paired_difference_interval,
 )
+from pipelines.rollout import EpisodeResult
 
 
 def test_pair_counts():

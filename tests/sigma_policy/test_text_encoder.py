@@ -145,7 +145,7 @@ def test_table_returns_the_encoders_features(clip, tmp_path: Path, monkeypatch) 
     table_file = save_text_features(
         enc, [*TABLE_INSTRUCTIONS, TABLE_INSTRUCTIONS[0]], tmp_path / "f.safetensors"
     )
-    assert not (tmp_path / "f.safetensors.tmp").exists()
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["clip", "f.safetensors"]  # no temporary left
     monkeypatch.setenv(TEXT_FEATURES_ENV, str(table_file))
     table = make_text_encoder("clip", path)
     assert isinstance(table, TextFeatureTable)
