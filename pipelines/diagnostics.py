@@ -2,15 +2,8 @@
 
 For every frame of a keyframe dataset that has a goal (all but the last frame of each episode) the checkpoint
 predicts the next keyframe, deterministically (no augmentation, no render noise: what ``sigma-eval`` acts on),
-and is compared with the recorded one:
-
-* **translation** error, centimetres (Euclidean distance of the positions);
-* **rotation** error, degrees: the geodesic angle, and per extrinsic-xyz Euler axis (roll, pitch, yaw) the wrapped
-  difference of the gimbal-fixed angles that the rotation head classifies (``sigma_policy.rotation``), and the yaw
-  error modulo a half turn (``yaw_half_turn_deg_mean``): a parallel gripper closes across the same axis at yaws
-  180° apart, so a large yaw error with a small half-turn error is the other wrist side of the right grasp, and a
-  large half-turn error is the wrong grasp axis;
-* **gripper** and **collision** accuracy (the two binary heads).
+and is compared with the recorded one, head by head (``pipelines/keyframe_errors.py``): translation (cm), rotation
+(geodesic and per Euler axis, degrees), gripper and collision agreement.
 
 Errors are summarised (median, mean, 90th percentile, share within 1 cm / 2 cm / 10° / 20°) over the whole set and per
 keyframe step (frame k of an episode predicts its keyframe k + 1: for Lift step 0 is the pre-grasp pose, 1 the
@@ -36,9 +29,9 @@ other seeds ignored the gripper state on Stack, and scored 48/90 against 82/90; 
 
 Pointed at a ``lerobot-train`` output directory, it diagnoses every saved checkpoint (``checkpoints/<step>/``) on
 the training keyframes and on held-out keyframes, and writes learning curves: ``diagnostics.json`` (every number),
-``curves.png`` and ``curves.rrd`` (Rerun scalars, one entity per metric). Held-out keyframes are either another
-dataset (``--heldout_root``, e.g. collected with other seeds) or the episodes of the training dataset that the run
-did not train on (``--dataset.episodes`` in its ``train_config.json``).
+``curves.png`` and ``curves.rrd`` (Rerun scalars, one entity per metric; ``pipelines/curves.py``). Held-out
+keyframes are either another dataset (``--heldout_root``, e.g. collected with other seeds) or the episodes of the
+training dataset that the run did not train on (``--dataset.episodes`` in its ``train_config.json``).
 
 Example::
 
@@ -49,7 +42,6 @@ Example::
 from __future__ import annotations
 
 import json
-import math
 import os
 import sys
 from dataclasses import dataclass, field
@@ -59,26 +51,10 @@ from typing import Any
 import draccus
 import numpy as np
 
+from pipelines.curves import log_curves_rerun, plot_curves
 from pipelines.gripper_swap import GripperPair, gripper_pairs, gripper_swap
 from pipelines.instruction_swap import SwapScene, instruction_swap, swap_scenes
-
-METRICS = (
-    "trans_cm_median",
-    "trans_cm_mean",
-    "trans_cm_p90",
-    "within_1cm",
-    "within_2cm",
-    "rot_deg_median",
-    "rot_deg_mean",
-    "within_10deg",
-    "within_20deg",
-    "roll_deg_mean",
-    "pitch_deg_mean",
-    "yaw_deg_mean",
-    "yaw_half_turn_deg_mean",
-    "gripper_acc",
-    "collision_acc",
-)
+from pipelines.keyframe_errors import METRICS, action_errors, split_summaries, summaries
 
 
 @dataclass
@@ -103,69 +79,6 @@ class DiagnoseConfig:
     device: str = "cpu"
     # Where diagnostics.json, curves.png and curves.rrd go (default: <run>/diagnostics or <checkpoint>/..).
     output_dir: Path | None = None
-
-
-# ---------------------------------------------------------------------------------------------- errors
-
-
-def wrap_deg(x: np.ndarray) -> np.ndarray:
-    """Angles in degrees wrapped to [-180, 180)."""
-    return (np.asarray(x) + 180.0) % 360.0 - 180.0
-
-
-def geodesic_deg(q1: np.ndarray, q2: np.ndarray) -> np.ndarray:
-    """Angle (degrees) of the rotation between unit quaternions ``(N, 4)`` (any order, sign-invariant)."""
-    q1 = q1 / np.linalg.norm(q1, axis=-1, keepdims=True)
-    q2 = q2 / np.linalg.norm(q2, axis=-1, keepdims=True)
-    dot = np.abs(np.sum(q1 * q2, axis=-1)).clip(0.0, 1.0)
-    return np.degrees(2 * np.arccos(dot))
-
-
-def action_errors(pred: np.ndarray, true: np.ndarray) -> dict[str, np.ndarray]:
-    """Per-frame errors between predicted and recorded 9-D keyframe actions ``(N, 9)``."""
-    import torch
-
-    from sigma_policy.rotation import _gimbal_fixed_euler
-
-    pred, true = np.asarray(pred, dtype=np.float64), np.asarray(true, dtype=np.float64)
-    euler_p = _gimbal_fixed_euler(torch.from_numpy(pred[:, 3:7])).numpy()
-    euler_t = _gimbal_fixed_euler(torch.from_numpy(true[:, 3:7])).numpy()
-    axes = np.abs(wrap_deg(euler_p - euler_t))
-    return {
-        "trans_cm": 100 * np.linalg.norm(pred[:, :3] - true[:, :3], axis=-1),
-        "rot_deg": geodesic_deg(pred[:, 3:7], true[:, 3:7]),
-        "roll_deg": axes[:, 0],
-        "pitch_deg": axes[:, 1],
-        "yaw_deg": axes[:, 2],
-        "yaw_half_turn_deg": np.minimum(axes[:, 2], 180.0 - axes[:, 2]),
-        "gripper_ok": (pred[:, 7] > 0.5) == (true[:, 7] > 0.5),
-        "collision_ok": (pred[:, 8] > 0.5) == (true[:, 8] > 0.5),
-    }
-
-
-def summarise_errors(err: dict[str, np.ndarray]) -> dict[str, float]:
-    """Median / mean / p90 / within-threshold shares of :func:`action_errors` (empty input -> NaNs)."""
-    t, r = err["trans_cm"], err["rot_deg"]
-    if len(t) == 0:
-        return dict.fromkeys(METRICS, math.nan) | {"frames": 0}
-    return {
-        "frames": len(t),
-        "trans_cm_median": float(np.median(t)),
-        "trans_cm_mean": float(np.mean(t)),
-        "trans_cm_p90": float(np.percentile(t, 90)),
-        "within_1cm": float(np.mean(t <= 1.0)),
-        "within_2cm": float(np.mean(t <= 2.0)),
-        "rot_deg_median": float(np.median(r)),
-        "rot_deg_mean": float(np.mean(r)),
-        "within_10deg": float(np.mean(r <= 10.0)),
-        "within_20deg": float(np.mean(r <= 20.0)),
-        "roll_deg_mean": float(np.mean(err["roll_deg"])),
-        "pitch_deg_mean": float(np.mean(err["pitch_deg"])),
-        "yaw_deg_mean": float(np.mean(err["yaw_deg"])),
-        "yaw_half_turn_deg_mean": float(np.mean(err["yaw_half_turn_deg"])),
-        "gripper_acc": float(np.mean(err["gripper_ok"])),
-        "collision_acc": float(np.mean(err["collision_ok"])),
-    }
 
 
 # ---------------------------------------------------------------------------------------------- data
@@ -293,22 +206,6 @@ def row_labels(
     return {key: np.array([str(records.get(e, {}).get(key, "unknown")) for e in episodes]) for key in keys}
 
 
-def summaries(err: dict[str, np.ndarray], steps: np.ndarray) -> dict[str, Any]:
-    """``{"all": ..., "per_step": {step: ...}}``: :func:`summarise_errors` of every frame and of each keyframe step."""
-    per_step = {
-        str(int(s)): summarise_errors({k: v[steps == s] for k, v in err.items()}) for s in np.unique(steps)
-    }
-    return {"all": summarise_errors(err), "per_step": per_step}
-
-
-def split_summaries(err: dict[str, np.ndarray], steps: np.ndarray, labels: np.ndarray) -> dict[str, Any]:
-    """:func:`summaries` of the frames of each label (task or variation): ``{label: {"all", "per_step"}}``."""
-    return {
-        label: summaries({k: v[labels == label] for k, v in err.items()}, steps[labels == label])
-        for label in sorted(set(labels.tolist()))
-    }
-
-
 def diagnose_checkpoint(
     policy: Any, pre: Any, sets: list[KeyframeSet], batch_size: int = 16
 ) -> dict[str, dict[str, Any]]:
@@ -345,49 +242,6 @@ def run_checkpoints(run_dir: Path) -> list[tuple[int, Path]]:
     if not ckpts:
         raise FileNotFoundError(f"{run_dir}/checkpoints has no numbered checkpoint with a pretrained_model")
     return ckpts
-
-
-def plot_curves(curves: dict[str, Any], path: Path) -> None:
-    """Translation (cm), rotation (deg) and head accuracies against training step, train vs held-out."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    steps = curves["steps"]
-    panels = [
-        ("translation error, median (cm)", "trans_cm_median"),
-        ("rotation error, median (deg)", "rot_deg_median"),
-        ("yaw error, mean (deg)", "yaw_deg_mean"),
-        ("gripper accuracy", "gripper_acc"),
-    ]
-    fig, axes = plt.subplots(1, len(panels), figsize=(4 * len(panels), 3.2))
-    for ax, (title, metric) in zip(axes, panels, strict=True):
-        for name, series in curves["sets"].items():
-            ax.plot(steps, series[metric], marker="o", label=name)
-        ax.set_title(title, fontsize=10)
-        ax.set_xlabel("training step")
-        ax.grid(alpha=0.3)
-    axes[0].legend()
-    fig.tight_layout()
-    fig.savefig(path, dpi=100)
-    plt.close(fig)
-
-
-def log_curves_rerun(curves: dict[str, Any], path: Path) -> None:
-    """Rerun scalars: ``diagnostics/<set>/<metric>`` on the ``step`` timeline."""
-    import rerun as rr
-
-    rec = rr.RecordingStream("sigma-diagnose")
-    rec.save(str(path))
-    for i, step in enumerate(curves["steps"]):
-        rec.set_time("step", sequence=step)
-        for name, series in curves["sets"].items():
-            for metric in series:
-                value = series[metric][i]
-                if value is not None and math.isfinite(value):
-                    rec.log(f"diagnostics/{name}/{metric}", rr.Scalars(value))
-    rec.flush()
 
 
 def run_diagnose(cfg: DiagnoseConfig) -> dict[str, Any]:

@@ -43,7 +43,7 @@ def failure_reason(result: EpisodeResult, max_keyframes: int) -> str | None:
     """
     import numpy as np
 
-    from pipelines.diagnostics import geodesic_deg
+    from pipelines.keyframe_errors import geodesic_deg
 
     if result.success:
         return None

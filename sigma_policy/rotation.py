@@ -20,6 +20,7 @@ __all__ = [
     "bins_to_quat",
     "euler_xyz_to_matrix",
     "euler_xyz_to_quat",
+    "gimbal_fixed_euler",
     "matrix_to_quat",
     "normalize_quat",
     "quat_to_bins",
@@ -127,7 +128,9 @@ def quat_to_euler_xyz(q: Tensor) -> Tensor:
     return _matrix_to_euler_xyz(quat_to_matrix(q))
 
 
-def _gimbal_fixed_euler(q: Tensor) -> Tensor:
+def gimbal_fixed_euler(q: Tensor) -> Tensor:
+    """:func:`quat_to_euler_xyz` (float64) with a pitch within ``GIMBAL_TOLERANCE_DEG`` of ±90° snapped to ±90° and
+    roll and yaw re-derived there: the angles the rotation head classifies (:func:`quat_to_bins`)."""
     euler = quat_to_euler_xyz(q.double())
     pitch = euler[..., 1]
     near = (pitch.abs() > 90 - GIMBAL_TOLERANCE_DEG) & (pitch.abs() < 90 + GIMBAL_TOLERANCE_DEG)
@@ -145,7 +148,7 @@ def quat_to_bins(q: Tensor, num_bins: int = 72) -> Tensor:
     if 360 % num_bins:
         raise ValueError(f"num_bins must divide 360, got {num_bins}")
     res = 360 / num_bins
-    euler = _gimbal_fixed_euler(q)
+    euler = gimbal_fixed_euler(q)
     return (torch.round((euler + 180) / res).long() % num_bins).to(q.device)
 
 

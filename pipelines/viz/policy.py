@@ -86,7 +86,7 @@ def heatmap_to_rgba(heatmap: np.ndarray, max_alpha: float = 0.85) -> np.ndarray:
 
 def quaternion_angle_deg(q1_xyzw: np.ndarray, q2_xyzw: np.ndarray) -> float:
     """Geodesic angle between two unit quaternions (xyzw), degrees in [0, 180]; sign-invariant."""
-    from pipelines.diagnostics import geodesic_deg
+    from pipelines.keyframe_errors import geodesic_deg
 
     return float(geodesic_deg(np.asarray(q1_xyzw)[None], np.asarray(q2_xyzw)[None])[0])
 

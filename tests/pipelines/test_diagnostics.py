@@ -9,14 +9,8 @@ import numpy as np
 import pytest
 import torch
 
-from pipelines.diagnostics import (
-    DiagnoseConfig,
-    action_errors,
-    goal_rows,
-    open_dataset,
-    run_diagnose,
-    summarise_errors,
-)
+from pipelines.diagnostics import DiagnoseConfig, goal_rows, open_dataset, run_diagnose
+from pipelines.keyframe_errors import action_errors, summarise_errors
 from sigma_policy.modeling_sigma import SigmaPolicy
 from sigma_policy.rotation import euler_xyz_to_quat
 from tests.pipelines.checkpoint_fixtures import save_tiny_checkpoint

@@ -80,7 +80,7 @@ def test_rotation_is_learnable_under_yaw_augmentation(tmp_path, local_channels):
     position, see the cube's outline and learn it faster; the token features alone (``local_channels=0``) get
     there too within this budget (docs/learning.md)."""
     from sigma_policy.augmentation import se3_augment
-    from sigma_policy.rotation import _gimbal_fixed_euler
+    from sigma_policy.rotation import gimbal_fixed_euler
 
     root = write_tiny_keyframe_dataset(tmp_path / "tiny", episodes=4, size=64)
     _, policy, pre, _, ds = build(
@@ -115,7 +115,7 @@ def test_rotation_is_learnable_under_yaw_augmentation(tmp_path, local_channels):
             )
             res = 360 / policy.config.num_rotation_bins
             pred_yaw = out.rot_logits[:, 2].argmax(-1).double() * res - 180
-            true_yaw = _gimbal_fixed_euler(quat)[:, 2]
+            true_yaw = gimbal_fixed_euler(quat)[:, 2]
             diff = (pred_yaw - true_yaw + 180) % 360 - 180
             hits += int((diff.abs() <= 10).sum())
             total += len(idx)
