@@ -3,8 +3,8 @@
 Every benchmark writes a Markdown fragment (with the exact command and the machine) and a JSON file of raw
 numbers to ``benchmarks/results/<name>.*`` (:func:`pipelines.reporting.write_report`). This command runs the
 chosen benchmarks one after the other as subprocesses from the repository root, then stitches the fragments, in
-a fixed order (experts, tolerance, ablation, compare, learning, demos, suite, collect, loader, renderer, policy), under a
-short header into ``RESULTS.md``.
+a fixed order (experts, tolerance, ablation, compare, learning, demos, suite, collect, loader, renderer, policy),
+under a short header into ``RESULTS.md``.
 A fragment that does not exist yet is shown as "not measured yet" with the command that produces it, never
 silently dropped; a benchmark that fails is reported with its exit status and command, and the others still run.
 Numbers come only from those runs.
