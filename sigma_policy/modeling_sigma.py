@@ -11,9 +11,9 @@ Per sample and frame (current frame i, and in training its goal, keyframe i+1, f
    (B, 5, 10, img_size, img_size); training adds the uniform render noise of docs/method.md §4.3 on channels 0-6.
 4. The network (``network.py``) with frozen, cached text-encoder tokens of ``task``.
 
-Losses (docs/method.md §6.1, §7): translation = soft-target cross-entropy of each view's heatmap against a Gaussian
-(sigma ``gt_heatmap_sigma`` px) at the projected target; 3 x ``num_rotation_bins`` Euler-bin CE; gripper CE;
-collision CE; BC = their sum. Total = ``bc_lambda`` · BC + (1 − ``bc_lambda``) · contrastive, or BC alone with
+Losses (docs/method.md §6.1, §7; ``behaviour_cloning.py``): translation = soft-target cross-entropy of each view's
+heatmap against a Gaussian (sigma ``gt_heatmap_sigma`` px) at the projected target; 3 x ``num_rotation_bins``
+Euler-bin CE; gripper CE; collision CE; BC = their sum. Total = ``bc_lambda`` · BC + (1 − ``bc_lambda``) · contrastive, or BC alone with
 ``use_contrastive=False``.
 
 Action (9,): ``[x, y, z, qx, qy, qz, qw, gripper_open, ignore_collision]`` in world metres, quaternion xyzw with
@@ -30,7 +30,6 @@ from pathlib import Path
 from typing import Any
 
 import torch
-import torch.nn.functional as F
 from lerobot.policies.pretrained import PreTrainedPolicy
 from lerobot.utils.constants import ACTION, OBS_STATE
 from torch import Tensor
@@ -38,6 +37,7 @@ from torch import Tensor
 from sigma_data.contract import STATE_QUAT, TIMESTAMP
 from sigma_policy import lerobot_patches
 from sigma_policy.augmentation import se3_augment
+from sigma_policy.behaviour_cloning import bc_losses
 from sigma_policy.compat import match_saved_modules
 from sigma_policy.configuration_sigma import SigmaConfig
 from sigma_policy.contrastive import contrastive_losses, instruction_ids
@@ -46,7 +46,7 @@ from sigma_policy.instruction_contrast import contrasted_logits, task_alternativ
 from sigma_policy.network import NetworkOutput, SigmaNetwork, predicted_uv
 from sigma_policy.pointcloud import bounds_mask, cube_to_world, depth_to_world_points, world_to_cube
 from sigma_policy.renderer import VirtualViewRenderer
-from sigma_policy.rotation import bins_to_quat, quat_to_bins, quat_to_matrix
+from sigma_policy.rotation import bins_to_quat, quat_to_matrix
 from sigma_policy.test_time import (
     EnsemblePass,
     consensus,
@@ -238,25 +238,11 @@ class SigmaPolicy(PreTrainedPolicy):
             head_uv=scan_uv,
         )
 
-        # ---- behaviour cloning (per sample)
-        log_p = torch.log_softmax(out.trans.float().flatten(2), dim=-1)
-        trans_loss = -(target_hm.flatten(2) * log_p).sum(-1).mean(-1)  # mean over views
-        rot_bins = quat_to_bins(quat, cfg.num_rotation_bins)  # (B, 3)
-        rot_loss = F.cross_entropy(out.rot_logits.float().transpose(1, 2), rot_bins, reduction="none").sum(-1)
-        grip_loss = F.cross_entropy(out.grip_logits.float(), action[:, 7].round().long(), reduction="none")
-        coll_loss = F.cross_entropy(
-            out.collision_logits.float(), action[:, 8].round().long(), reduction="none"
+        bc_terms = bc_losses(
+            out.trans, target_hm, out.rot_logits, out.grip_logits, out.collision_logits, action, quat
         )
-        bc = trans_loss + rot_loss + grip_loss + coll_loss
-
-        info = {
-            "trans_loss": trans_loss.mean().item(),
-            "rot_loss": rot_loss.mean().item(),
-            "grip_loss": grip_loss.mean().item(),
-            "collision_loss": coll_loss.mean().item(),
-            "bc_loss": bc.mean().item(),
-        }
-        per_sample = bc = bc * self._frame_weights(batch, bc)
+        info = bc_terms.info()
+        per_sample = bc = bc_terms.total * self._frame_weights(batch, bc_terms.total)
         if cfg.use_contrastive:
             group = self._negative_groups(tasks, bc.device)
             cl = contrastive_losses(
