@@ -27,6 +27,8 @@ logger = logging.getLogger(__name__)
 
 @dataclass(frozen=True)
 class Job:
+    """One episode to play: a task's variation and the seed its scene is reset with."""
+
     task: str
     variation: str
     seed: int
@@ -34,6 +36,9 @@ class Job:
 
 @dataclass
 class EpisodeResult:
+    """What one episode did: a line of the episode log (``pipelines/episode_log.py``) and an entry of
+    ``results.json``'s ``episodes``."""
+
     task: str
     variation: str
     seed: int
