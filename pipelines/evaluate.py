@@ -42,7 +42,7 @@ from pipelines.checkpoints import CheckpointError, check_checkpoint
 from pipelines.episode_log import EpisodeLog
 from pipelines.failures import failure_kind
 from pipelines.rollout import EpisodeResult, Job, init_worker, run_job
-from sigma_data.files import write_json_atomic
+from sigma_data.files import sha256, write_json_atomic
 
 
 @dataclass
@@ -233,8 +233,6 @@ def run_eval(cfg: EvalConfig) -> dict:
 def _resume(cfg: EvalConfig, jobs: list[Job]) -> tuple[EpisodeLog, list[EpisodeResult], list[Job]]:
     """The episode log of this evaluation, the planned episodes a killed run of it already finished
     (``pipelines/episode_log.py``: the same weights, keyframe budget and test-time options), and the jobs left."""
-    from sigma_data.files import sha256
-
     # The weights by content: the same wherever the checkpoint was copied to (a GPU lease's, unpacked here).
     header = {
         "weights_sha256": sha256(Path(cfg.checkpoint) / "model.safetensors"),

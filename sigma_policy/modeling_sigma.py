@@ -13,8 +13,8 @@ Per sample and frame (current frame i, and in training its goal, keyframe i+1, f
 
 Losses (docs/method.md §6.1, §7; ``behaviour_cloning.py``): translation = soft-target cross-entropy of each view's
 heatmap against a Gaussian (sigma ``gt_heatmap_sigma`` px) at the projected target; 3 x ``num_rotation_bins``
-Euler-bin CE; gripper CE; collision CE; BC = their sum. Total = ``bc_lambda`` · BC + (1 − ``bc_lambda``) · contrastive, or BC alone with
-``use_contrastive=False``.
+Euler-bin CE; gripper CE; collision CE; BC = their sum. Total = ``bc_lambda`` · BC + (1 − ``bc_lambda``) ·
+contrastive, or BC alone with ``use_contrastive=False``.
 
 Action (9,): ``[x, y, z, qx, qy, qz, qw, gripper_open, ignore_collision]`` in world metres, quaternion xyzw with
 w >= 0, the two flags in {0, 1}. ``predict`` also returns the rendered views, per-view heatmaps and the 3D point

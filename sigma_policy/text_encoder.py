@@ -224,7 +224,6 @@ def save_text_features(encoder: TextEncoder, instructions: list[str], path: str 
         raise ValueError("save_text_features needs at least one instruction")
     feats = encoder.encode(unique)
     path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
     meta = {
         "format": TABLE_FORMAT,
         "encoder": encoder.identity,
