@@ -320,6 +320,13 @@ class SigmaConfig(PreTrainedConfig):
     # one points at; the heads are then run at the contrasted point. In [0, 1); 0 = off (every preset); each other
     # instruction of the task adds one network run, and one more runs the heads.
     instruction_contrast: float = 0.0
+    # Instruction negatives (training only; sigma_policy/instruction_contrast.py): each first frame of an episode
+    # whose task has other instructions (``instruction_tasks``) is run once more under one of them, drawn at random,
+    # and ``instruction_negative_weight`` x the unlikelihood of its own keyframe there (-log(1 - q), q the heatmap
+    # mass within ``instruction_negative_sigma_px`` of the target) joins its BC loss. 0 = off. Costs one network run
+    # on the batch's first frames.
+    instruction_negative_weight: float = 0.0
+    instruction_negative_sigma_px: float = 3.0
     # Sub-voxel refinement of the translation at inference: centroid of the score profiles within this many
     # voxels of the argmax (sigma_policy/heatmap.py); 0 = the argmax voxel centre (RVT). None = from preset
     # (paper 0, small 2).
@@ -411,6 +418,14 @@ class SigmaConfig(PreTrainedConfig):
                 raise ValueError(f"policy.instruction_bounds[{instruction!r}] must be a box of 6, got {box}")
         self.tta_yaw_deg = check_yaw_angles(self.tta_yaw_deg, self.num_rotation_bins)
         self.instruction_contrast = check_contrast_weight(self.instruction_contrast)
+        if not self.instruction_negative_weight >= 0.0:
+            raise ValueError(
+                f"policy.instruction_negative_weight must be >= 0, got {self.instruction_negative_weight}"
+            )
+        if not self.instruction_negative_sigma_px > 0.0:
+            raise ValueError(
+                f"policy.instruction_negative_sigma_px must be > 0, got {self.instruction_negative_sigma_px}"
+            )
         if not self.tta_radius_m > 0.0:
             raise ValueError(f"policy.tta_radius_m must be > 0, got {self.tta_radius_m}")
         self.network_config()  # validates the architecture numbers early

@@ -17,6 +17,15 @@ argmax is the policy's own, while a place that every instruction points at loses
 at. It is classifier-free guidance's contrast (Ho & Salimans 2022, https://arxiv.org/abs/2207.12598) with the task's
 other instructions standing in for the unconditional model. An instruction alone in its task (Lift), or one the
 policy was not trained on, is left as it is.
+
+The same alternatives also give training a negative (``instruction_negative_weight``, :func:`swap_negative_loss`):
+an episode's first frame, asked under another instruction of its task, should not point where its own
+instruction's keyframe is. Stack's two orders, PickPlace's four objects and NutAssembly's two nuts all start from a
+scene where only the words choose the object, and the frozen text encoder's features of two such instructions are
+nearly identical (docs/learning.md, "Reading the instruction"); the BC loss alone leaves it to the draw whether a
+run learns to read them. The negative is unlikelihood training (Welleck et al. 2019,
+https://arxiv.org/abs/1908.04319) on the heatmap: ``-log(1 - q)`` with ``q`` the probability mass each view's
+heatmap under the other instruction puts in a window around the target, averaged over views.
 """
 
 from __future__ import annotations
@@ -26,7 +35,7 @@ import math
 import torch
 from torch import Tensor
 
-__all__ = ["check_contrast_weight", "contrasted_logits", "task_alternatives"]
+__all__ = ["check_contrast_weight", "contrasted_logits", "swap_negative_loss", "task_alternatives"]
 
 
 def check_contrast_weight(weight: float) -> float:
@@ -67,3 +76,18 @@ def contrasted_logits(own: Tensor, others: Tensor, valid: Tensor, weight: float)
     count = 1 + valid.sum(0).to(log_own)  # (B,): own and the real others
     log_mean = torch.logsumexp(torch.cat([log_own[None], log_others]), dim=0) - count.log()[:, None, None]
     return (log_own - weight * log_mean).reshape(own.shape)
+
+
+def swap_negative_loss(swapped_logits: Tensor, window: Tensor) -> Tensor:
+    """(B,) unlikelihood of the own target under another instruction (module docstring), averaged over views.
+
+    Args:
+        swapped_logits: (B, V, H, W) translation logits of the same views under another instruction of the task.
+        window: (B, V, H, W) in [0, 1], 1 at the own keyframe's pixel and falling off around it (0 in a view the
+            target is outside of, which then costs nothing).
+    """
+    if swapped_logits.shape != window.shape:
+        raise ValueError(f"logits {tuple(swapped_logits.shape)} and window {tuple(window.shape)} differ")
+    p = torch.softmax(swapped_logits.float().flatten(2), dim=-1)
+    q = (p * window.flatten(2)).sum(-1).clamp(0.0, 1.0 - 1e-6)  # (B, V)
+    return -torch.log1p(-q).mean(-1)

@@ -42,7 +42,7 @@ from sigma_policy.compat import match_saved_modules
 from sigma_policy.configuration_sigma import SigmaConfig
 from sigma_policy.contrastive import contrastive_losses, instruction_ids
 from sigma_policy.heatmap import gaussian_heatmaps, heatmap_to_cube_point
-from sigma_policy.instruction_contrast import contrasted_logits, task_alternatives
+from sigma_policy.instruction_contrast import contrasted_logits, swap_negative_loss, task_alternatives
 from sigma_policy.network import NetworkOutput, SigmaNetwork, predicted_uv
 from sigma_policy.pointcloud import bounds_mask, cube_to_world, depth_to_world_points, world_to_cube
 from sigma_policy.renderer import VirtualViewRenderer
@@ -113,6 +113,11 @@ class SigmaPolicy(PreTrainedPolicy):
             logging.getLogger(__name__).warning(
                 "mask_same_task: no instruction -> task map (policy.instruction_tasks, or a dataset whose "
                 "meta/sigma.json records each episode's task); only same-instruction negatives are masked"
+            )
+        if dataset_meta is not None and config.instruction_negative_weight and not config.instruction_tasks:
+            raise ValueError(
+                "instruction_negative_weight: no instruction -> task map (policy.instruction_tasks, or a dataset "
+                "whose meta/sigma.json records each episode's task), so no sample has another instruction to ask"
             )
         self.config: SigmaConfig = config
         self.cameras = config.camera_names()
@@ -196,30 +201,11 @@ class SigmaPolicy(PreTrainedPolicy):
         tasks = self._tasks(batch, action.shape[0])
         bounds = self._bounds(tasks)
 
-        cloud = self._cloud(batch, t=0)
-        points, pos, quat, transforms = se3_augment(
-            cloud.points,
-            action[:, :3],
-            action[:, 3:7],
-            bounds,
-            xyz_range=cfg.aug_translation_range,
-            yaw_range_deg=cfg.aug_yaw_range_deg,
-        )
-        views = self._add_render_noise(self._render(points, cloud.colors, bounds))
-
+        views, pos, quat, transforms = self._augmented_views(batch, 0, action[:, :3], action[:, 3:7], bounds)
         goal_views = None
         if cfg.use_contrastive:
-            goal = self._cloud(batch, t=1)
             state = self._take(batch, OBS_STATE, t=1, item_ndim=1).float()
-            goal_points, *_ = se3_augment(
-                goal.points,
-                state[:, :3],
-                state[:, STATE_QUAT],
-                bounds,
-                xyz_range=cfg.aug_translation_range,
-                yaw_range_deg=cfg.aug_yaw_range_deg,
-            )
-            goal_views = self._add_render_noise(self._render(goal_points, goal.colors, bounds))
+            goal_views, *_ = self._augmented_views(batch, 1, state[:, :3], state[:, STATE_QUAT], bounds)
 
         target_uv = self.renderer.project(world_to_cube(pos[:, None], bounds))[:, 0]  # (B, V, 2)
         target_hm = gaussian_heatmaps(target_uv, cfg.img_size, sigma=cfg.gt_heatmap_sigma)
@@ -243,6 +229,10 @@ class SigmaPolicy(PreTrainedPolicy):
         )
         info = bc_terms.info()
         per_sample = bc = bc_terms.total * self._frame_weights(batch, bc_terms.total)
+        if cfg.instruction_negative_weight:
+            negative = self._instruction_negatives(views, tasks, batch, bounds, transforms, target_uv)
+            info["instruction_negative_loss"] = negative.sum().item() / max(int((negative > 0).sum()), 1)
+            per_sample = bc = bc + cfg.instruction_negative_weight * negative
         if cfg.use_contrastive:
             group = self._negative_groups(tasks, bc.device)
             cl = contrastive_losses(
@@ -427,13 +417,47 @@ class SigmaPolicy(PreTrainedPolicy):
         w = self.config.first_keyframe_weight
         if w == 1.0:
             return torch.ones_like(bc)
-        if TIMESTAMP not in batch:
-            raise KeyError(f"sigma: first_keyframe_weight={w} needs the batch's '{TIMESTAMP}'")
-        first = torch.as_tensor(batch[TIMESTAMP], device=bc.device).reshape(-1) < 1e-6
-        if first.shape != bc.shape:
-            raise ValueError(f"sigma: '{TIMESTAMP}' has {first.numel()} entries for a batch of {bc.shape[0]}")
+        first = self._first_frames(batch, bc.shape[0], bc.device, "first_keyframe_weight")
         weights = torch.where(first, w, 1.0).to(bc.dtype)
         return weights / weights.mean()
+
+    @staticmethod
+    def _first_frames(batch: dict[str, Any], b: int, device: torch.device, option: str) -> Tensor:
+        """(B,) bool: which samples are their episode's first frame (timestamp 0); ``option`` names who asks."""
+        if TIMESTAMP not in batch:
+            raise KeyError(f"sigma: {option} needs the batch's '{TIMESTAMP}'")
+        first = torch.as_tensor(batch[TIMESTAMP], device=device).reshape(-1) < 1e-6
+        if first.shape != (b,):
+            raise ValueError(f"sigma: '{TIMESTAMP}' has {first.numel()} entries for a batch of {b}")
+        return first
+
+    def _instruction_negatives(
+        self,
+        views: Tensor,
+        tasks: list[str],
+        batch: dict[str, Any],
+        bounds: Tensor,
+        transforms: Tensor,
+        target_uv: Tensor,
+    ) -> Tensor:
+        """(B,) the unlikelihood of each first frame's own target under another instruction of its task, drawn at
+        random (sigma_policy/instruction_contrast.py); 0 for the other samples. One network run on those rows."""
+        cfg = self.config
+        b = len(tasks)
+        negative = torch.zeros(b, device=views.device)
+        alternatives = task_alternatives(tasks, cfg.instruction_tasks)
+        first = self._first_frames(batch, b, views.device, "instruction_negative_weight").tolist()
+        rows = [i for i in range(b) if alternatives[i] and first[i]]
+        if not rows:
+            return negative
+        draws = torch.randint(0, 2**31 - 1, (len(rows),)).tolist()
+        asked = [alternatives[i][d % len(alternatives[i])] for i, d in zip(rows, draws, strict=True)]
+        idx = torch.tensor(rows, device=views.device)
+        sub = {k: v[idx] if isinstance(v, Tensor) and v.shape[:1] == (b,) else v for k, v in batch.items()}
+        out = self._run_network(views[idx], asked, sub, bounds[idx], transforms=transforms[idx])
+        window = gaussian_heatmaps(target_uv[idx], cfg.img_size, sigma=cfg.instruction_negative_sigma_px)
+        window = window / window.amax((-2, -1), keepdim=True).clamp_min(1e-12)
+        return negative.index_put((idx,), swap_negative_loss(out.trans, window))
 
     @staticmethod
     def _tasks(batch: dict[str, Any], b: int) -> list[str]:
@@ -501,6 +525,22 @@ class SigmaPolicy(PreTrainedPolicy):
         if not torch.isfinite(lo).all():
             raise ValueError("place_with_mean_at_eval: a sample has no points inside scene_bounds")
         return torch.cat([lo, hi], -1)
+
+    def _augmented_views(
+        self, batch: dict[str, Any], t: int, pos: Tensor, quat: Tensor, bounds: Tensor
+    ) -> tuple[Tensor, Tensor, Tensor, Tensor]:
+        """Frame ``t``'s cloud under its own SE(3) draw about ``pos`` (B, 3) / ``quat`` (B, 4), rendered with the
+        training render noise: ``(views, pos', quat', transforms)`` (sigma_policy/augmentation.py)."""
+        cloud = self._cloud(batch, t)
+        points, pos, quat, transforms = se3_augment(
+            cloud.points,
+            pos,
+            quat,
+            bounds,
+            xyz_range=self.config.aug_translation_range,
+            yaw_range_deg=self.config.aug_yaw_range_deg,
+        )
+        return self._add_render_noise(self._render(points, cloud.colors, bounds)), pos, quat, transforms
 
     def _render(self, points: Tensor, colors: Tensor, bounds: Tensor) -> Tensor:
         """Crop to ``bounds`` ((6,) shared or (B, 6) per sample), map to the cube and render (B, V, 10, H, W)."""

@@ -69,3 +69,30 @@ def test_shapes_that_do_not_match_and_weights_outside_0_1_are_refused():
         with pytest.raises(ValueError, match=r"\[0, 1\)"):
             check_contrast_weight(weight)
     assert check_contrast_weight(0) == 0.0
+
+
+def test_swap_negative_costs_the_mass_the_other_instruction_puts_at_the_own_target():
+    """-log(1 - q) per view, averaged: nothing at the target costs 0, half of the mass costs log 2, and a view the
+    target is outside of (an all-zero window) costs nothing."""
+    from sigma_policy.instruction_contrast import swap_negative_loss
+
+    window = torch.tensor([1.0, 0.5, 0.0, 0.0]).view(1, 1, 1, 4)
+    away = swap_negative_loss(_logits(1e-9, 1e-9, 0.5, 0.5), window)
+    assert away.item() == pytest.approx(0.0, abs=1e-6)
+    half = swap_negative_loss(_logits(0.5, 1e-9, 0.5 - 1e-9, 1e-9), window)
+    assert half.item() == pytest.approx(math.log(2), rel=1e-4)
+    two_views = torch.cat([_logits(0.5, 1e-9, 0.5 - 1e-9, 1e-9)] * 2, dim=1)
+    outside = torch.cat([window, torch.zeros_like(window)], dim=1)
+    assert swap_negative_loss(two_views, outside).item() == pytest.approx(math.log(2) / 2, rel=1e-4)
+    all_in = swap_negative_loss(_logits(1.0 - 3e-9, 1e-9, 1e-9, 1e-9), window)
+    assert all_in.item() > 10 and torch.isfinite(all_in)
+
+
+def test_swap_negative_gradient_moves_mass_off_the_target():
+    from sigma_policy.instruction_contrast import swap_negative_loss
+
+    logits = torch.zeros(1, 1, 1, 4, requires_grad=True)
+    swap_negative_loss(logits, torch.tensor([1.0, 0.0, 0.0, 0.0]).view(1, 1, 1, 4)).backward()
+    assert logits.grad[0, 0, 0, 0] > 0 and (logits.grad[0, 0, 0, 1:] < 0).all()
+    with pytest.raises(ValueError, match="differ"):
+        swap_negative_loss(logits, torch.ones(1, 1, 2, 2))

@@ -813,3 +813,41 @@ def test_policy_reads_instructions_from_a_feature_table_and_acts_the_same(tiny_r
         KeyError, match=r"f\.safetensors: no features for the instruction\(s\) \['fly away'\]"
     ):
         loaded.select_action(pre(dict(obs) | {"task": "fly away"}))
+
+
+def test_instruction_negatives_ask_first_frames_the_other_instruction_and_add_its_unlikelihood(tiny_root):
+    """``instruction_negative_weight``: only the batch's first frames whose task has another instruction are run
+    again, under that instruction, and only their per-sample loss grows, by the weight times the unlikelihood of
+    their own target there (inside BC); the rest of the loss is drawn and computed as without the option."""
+    red, blue = "reach the red cube", "reach the blue cube"
+    tasks = {red: "reach", blue: "reach", "lift the cube": "lift"}
+    _, plain, pre, _, ds = build(tiny_root, instruction_tasks=tasks)
+    cfg, negative, *_ = build(tiny_root, instruction_tasks=tasks, instruction_negative_weight=2.0)
+    negative.load_state_dict(plain.state_dict())
+    batch = pre(training_batch(ds, [0, 1, 3, 4])) | {"task": [red, blue, "lift the cube", blue]}
+    calls = []
+    run_network = negative._run_network
+
+    def spy_network(views, asked, sub, bounds, **kwargs):
+        out = run_network(views, asked, sub, bounds, **kwargs)
+        calls.append((list(asked), views.shape[0], sub["observation.state"].shape[0]))
+        return out
+
+    negative._run_network = spy_network
+    torch.manual_seed(0)
+    base, _ = plain.forward(batch, reduction="none")
+    torch.manual_seed(0)
+    loss, info = negative.forward(batch, reduction="none")
+    # rows 0 and 2 are first frames; row 2's task (lift) has no other instruction
+    assert calls[1] == ([blue], 1, 1)
+    assert info["instruction_negative_loss"] > 0
+    extra = loss - base  # BC's share of the total is bc_lambda
+    assert extra[0].item() == pytest.approx(cfg.bc_lambda * 2.0 * info["instruction_negative_loss"], rel=1e-4)
+    torch.testing.assert_close(extra[1:], torch.zeros(3), atol=1e-5, rtol=0)
+    del batch["timestamp"]
+    with pytest.raises(KeyError, match="instruction_negative_weight"):
+        negative.forward(batch)
+    with pytest.raises(ValueError, match="no instruction -> task map"):
+        build(tiny_root, instruction_negative_weight=1.0)
+    with pytest.raises(ValueError, match="instruction_negative_weight"):
+        SigmaConfig(instruction_negative_weight=-1.0)
