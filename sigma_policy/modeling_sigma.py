@@ -123,6 +123,9 @@ class SigmaPolicy(PreTrainedPolicy):
         self.cameras = config.camera_names()
         self._depth_checked = False
         self._warned_instructions: set[str] = set()
+        # Which other instruction an instruction negative asks: a stream of its own, seeded by the run's seed, so
+        # that turning the option on leaves every other draw of training (augmentation, dropout) as it was.
+        self._negative_draws = torch.Generator().manual_seed(torch.initial_seed())
         # Frozen and cached per instruction; kept outside the module tree so it is neither saved nor trained.
         self.__dict__["text_encoder"] = make_text_encoder(config.text_encoder, config.text_encoder_path)
         self._lang_cache: dict[str, tuple[Tensor, Tensor]] = {}
@@ -450,7 +453,7 @@ class SigmaPolicy(PreTrainedPolicy):
         rows = [i for i in range(b) if alternatives[i] and first[i]]
         if not rows:
             return negative
-        draws = torch.randint(0, 2**31 - 1, (len(rows),)).tolist()
+        draws = torch.randint(0, 2**31 - 1, (len(rows),), generator=self._negative_draws).tolist()
         asked = [alternatives[i][d % len(alternatives[i])] for i, d in zip(rows, draws, strict=True)]
         idx = torch.tensor(rows, device=views.device)
         sub = {k: v[idx] if isinstance(v, Tensor) and v.shape[:1] == (b,) else v for k, v in batch.items()}

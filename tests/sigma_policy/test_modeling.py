@@ -818,7 +818,7 @@ def test_policy_reads_instructions_from_a_feature_table_and_acts_the_same(tiny_r
 def test_instruction_negatives_ask_first_frames_the_other_instruction_and_add_its_unlikelihood(tiny_root):
     """``instruction_negative_weight``: only the batch's first frames whose task has another instruction are run
     again, under that instruction, and only their per-sample loss grows, by the weight times the unlikelihood of
-    their own target there (inside BC); the rest of the loss is drawn and computed as without the option."""
+    their own target there (inside BC); the rest of the loss, and the global random stream, are as without it."""
     red, blue = "reach the red cube", "reach the blue cube"
     tasks = {red: "reach", blue: "reach", "lift the cube": "lift"}
     _, plain, pre, _, ds = build(tiny_root, instruction_tasks=tasks)
@@ -836,8 +836,11 @@ def test_instruction_negatives_ask_first_frames_the_other_instruction_and_add_it
     negative._run_network = spy_network
     torch.manual_seed(0)
     base, _ = plain.forward(batch, reduction="none")
+    after_plain = torch.get_rng_state()
     torch.manual_seed(0)
     loss, info = negative.forward(batch, reduction="none")
+    # the other instruction is drawn from a stream of its own: the rest of training draws as without the option
+    assert torch.equal(torch.get_rng_state(), after_plain)
     # rows 0 and 2 are first frames; row 2's task (lift) has no other instruction
     assert calls[1] == ([blue], 1, 1)
     assert info["instruction_negative_loss"] > 0
