@@ -16,7 +16,7 @@ canonical instructions (``canonical``), under three fixed rescalings of the feat
 
 ``readout`` says whether a network could tell the variations apart from these features at all, paraphrases it was
 not trained on included: each instruction in turn is left out, a linear ridge readout of the variation is fitted on
-the others (closed form, centred features scaled to unit mean norm) and asked the left-out one's variation.
+the others (closed form, with an intercept, on features scaled to unit mean norm about their mean) and asked the left-out one's variation.
 
 Centring and rescaling a dimension cannot change a ratio of distances that every dimension contributes to alike;
 whitening puts N instructions at the corners of a regular simplex, where every pair is as far apart as every other
@@ -90,16 +90,17 @@ def readout_misses(features: Tensor, labels: list[tuple[str, str]], ridge: float
     """Rows of ``features (N, ...)`` whose ``(task, variation)`` a linear ridge readout fitted on the other rows
     gets wrong (leave one out; the readout regresses the one-hot variation and takes its largest output)."""
     x = features.reshape(len(features), -1).double()
-    x = x - x.mean(0)
-    x = x / x.norm(dim=1).mean()
+    x = x / (x - x.mean(0)).norm(dim=1).mean()
     names = sorted(set(labels))
     y = torch.nn.functional.one_hot(torch.tensor([names.index(v) for v in labels]), len(names)).double()
     misses = []
     for i in range(len(x)):
         rest = [j for j in range(len(x)) if j != i]
-        gram = x[rest] @ x[rest].T + ridge * torch.eye(len(rest), dtype=x.dtype)
-        alpha = torch.linalg.solve(gram, y[rest] - y[rest].mean(0))
-        if int((x[i] @ x[rest].T @ alpha).argmax()) != names.index(labels[i]):
+        # Centred on the fitted rows alone, with the intercept (their mean one-hot) added back to the prediction.
+        x_mean, y_mean = x[rest].mean(0), y[rest].mean(0)
+        xr = x[rest] - x_mean
+        alpha = torch.linalg.solve(xr @ xr.T + ridge * torch.eye(len(rest), dtype=x.dtype), y[rest] - y_mean)
+        if int(((x[i] - x_mean) @ xr.T @ alpha + y_mean).argmax()) != names.index(labels[i]):
             misses.append(i)
     return misses
 
