@@ -76,6 +76,10 @@ class EvalConfig:
     # It needs the policy's instruction -> task map, which checkpoints saved before 2026-11-29 lack: it is then read
     # from --train_dataset.
     instruction_contrast: float | None = None
+    # Further checkpoints trained on the same data (other seeds) that act with --checkpoint as one policy: every
+    # pass averages their heatmaps and head probabilities (a deep ensemble, sigma_policy/ensemble.py). Their views
+    # and boxes must be --checkpoint's; the pre- and post-processor are --checkpoint's.
+    ensemble: list[Path] = field(default_factory=list)
 
 
 def wilson_interval(successes: int, n: int, z: float = 1.96) -> tuple[float, float]:
@@ -113,6 +117,13 @@ def plan_jobs(cfg: EvalConfig) -> list[Job]:
     return [Job(t, v, s) for s in seeds for t, v in pairs]
 
 
+def _plain(value: object) -> object:
+    """A config value as JSON holds it: paths as strings, in lists too."""
+    if isinstance(value, list):
+        return [_plain(v) for v in value]
+    return str(value) if isinstance(value, Path) else value
+
+
 def summarise(results: list[EpisodeResult], cfg: EvalConfig) -> dict:
     """Per-variation success with Wilson 95% intervals, plus the mean over variations."""
     groups: dict[tuple[str, str], list[EpisodeResult]] = defaultdict(list)
@@ -139,7 +150,7 @@ def summarise(results: list[EpisodeResult], cfg: EvalConfig) -> dict:
     mean = sum(r["success_rate"] for r in rows) / len(rows) if rows else 0.0
     return {
         "checkpoint": str(cfg.checkpoint),
-        "config": {k: str(v) if isinstance(v, Path) else v for k, v in asdict(cfg).items()},
+        "config": {k: _plain(v) for k, v in asdict(cfg).items()},
         "variations": rows,
         "mean_success": mean,
         "episodes": [asdict(r) for r in results],
@@ -184,6 +195,21 @@ def _check_instruction_contrast(cfg: EvalConfig) -> None:
         )
 
 
+def _check_ensemble(cfg: EvalConfig) -> None:
+    """CheckpointError or ValueError, naming the member, unless every ``--ensemble`` checkpoint is sound and renders
+    the scene as ``--checkpoint`` does (sigma_policy/ensemble.py, ``SHARED_FIELDS``)."""
+    from sigma_policy.configuration_sigma import SigmaConfig
+    from sigma_policy.ensemble import check_members
+
+    for member in cfg.ensemble:
+        if not (Path(member) / "config.json").exists():
+            raise CheckpointError(f"--ensemble: {member} is not a pretrained_model directory")
+        check_checkpoint(member)
+    lead = SigmaConfig.from_pretrained(str(cfg.checkpoint))
+    members = [SigmaConfig.from_pretrained(str(m)) for m in cfg.ensemble]
+    check_members(lead, members, [str(m) for m in cfg.ensemble])
+
+
 def run_eval(cfg: EvalConfig) -> dict:
     """Evaluate and write ``results.json`` / ``results.md`` under ``cfg.output_dir``; return the summary."""
     if cfg.checkpoint is None or not (Path(cfg.checkpoint) / "config.json").exists():
@@ -191,6 +217,8 @@ def run_eval(cfg: EvalConfig) -> dict:
     if cfg.episodes < 1 or cfg.max_keyframes < 1 or cfg.workers < 1:
         raise ValueError("--episodes, --max_keyframes and --workers must be >= 1")
     check_checkpoint(cfg.checkpoint)  # here, not in a pool worker: a bad file is one clear error
+    if cfg.ensemble:
+        _check_ensemble(cfg)
     if cfg.tta_yaw_deg is not None:
         from sigma_policy.test_time import check_yaw_angles
 
@@ -240,6 +268,8 @@ def _resume(cfg: EvalConfig, jobs: list[Job]) -> tuple[EpisodeLog, list[EpisodeR
         "tta_yaw_deg": cfg.tta_yaw_deg,
         "instruction_contrast": cfg.instruction_contrast,
     }
+    if cfg.ensemble:  # the header of a single policy's log stays as it was
+        header["ensemble_sha256"] = [sha256(Path(m) / "model.safetensors") for m in cfg.ensemble]
     log = EpisodeLog(cfg.output_dir, header)
     logged = {Job(r.task, r.variation, r.seed): r for r in log.resume(lambda d: EpisodeResult(**d))}
     done = [logged[j] for j in jobs if j in logged]

@@ -67,6 +67,9 @@ class RolloutWorker:
         torch.set_num_threads(max(1, (os.cpu_count() or 1) // max(1, cfg.workers)))
         self.cfg = cfg
         self.policy, self.pre, self.post = load_policy(cfg.checkpoint, cfg.device)
+        if cfg.ensemble:  # checked in run_eval
+            members = [load_policy(m, cfg.device)[0] for m in cfg.ensemble]
+            self.policy.add_ensemble_members(members, [str(m) for m in cfg.ensemble])
         if cfg.tta_yaw_deg is not None:  # checked in run_eval
             self.policy.config.tta_yaw_deg = [float(a) for a in cfg.tta_yaw_deg]
         if cfg.instruction_contrast is not None:  # checked in run_eval

@@ -1,5 +1,5 @@
-"""SE(3) training augmentation (docs/method.md §9, RVT ``apply_se3_aug_con`` version 2), applied consistently to the
-point cloud and the action target.
+"""Training augmentation: SE(3) (docs/method.md §9, RVT ``apply_se3_aug_con`` version 2), applied consistently to
+the point cloud and the action target, and the render noise on the rendered views (:func:`add_render_noise`).
 
 Per sample: a translation ``t`` uniform in ``[-xyz_range, xyz_range]`` metres per axis (RVT scales its 0.125 by the
 box extent; with its 1 m box that is the same +-0.125 m), clamped so that the target position ``a + t`` stays inside
@@ -22,7 +22,9 @@ from torch import Tensor
 
 from sigma_policy.rotation import matrix_to_quat, quat_to_matrix
 
-__all__ = ["se3_augment"]
+__all__ = ["NOISY_CHANNELS", "add_render_noise", "se3_augment"]
+
+NOISY_CHANNELS = 7  # xyz, rgb, depth get the render noise; the 3 pixel-location channels do not
 
 
 def se3_augment(
@@ -68,3 +70,14 @@ def se3_augment(
     new_points = points @ R + transforms[:, None, :3, 3]  # row-vector form of R^T p + offset
     new_quat = matrix_to_quat(Rt @ quat_to_matrix(quat.to(dtype)))
     return new_points, pos + t, new_quat, transforms
+
+
+def add_render_noise(views: Tensor, image_noise: float) -> Tensor:
+    """Rendered views ``(B, V, C, H, W)`` with uniform noise U(-s, s), s = ``image_noise`` · U(0, 1) drawn once per
+    batch, on channels 0-6 (docs/method.md §4.3), then clamped to [-1, 1]; unchanged when ``image_noise`` <= 0."""
+    if image_noise <= 0:
+        return views
+    stdv = image_noise * torch.rand((), device=views.device)
+    noisy = views[:, :, :NOISY_CHANNELS]
+    noisy = (noisy + (torch.rand_like(noisy) * 2 - 1) * stdv).clamp(-1, 1)
+    return torch.cat([noisy, views[:, :, NOISY_CHANNELS:]], dim=2)

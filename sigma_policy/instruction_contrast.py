@@ -31,11 +31,22 @@ heatmap under the other instruction puts in a window around the target, averaged
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 
 import torch
 from torch import Tensor
 
-__all__ = ["check_contrast_weight", "contrasted_logits", "swap_negative_loss", "task_alternatives"]
+from sigma_policy.heatmap import gaussian_heatmaps
+from sigma_policy.network import NetworkOutput, predicted_uv
+
+__all__ = [
+    "check_contrast_weight",
+    "contrast_instructions",
+    "contrasted_logits",
+    "instruction_negatives",
+    "swap_negative_loss",
+    "task_alternatives",
+]
 
 
 def check_contrast_weight(weight: float) -> float:
@@ -91,3 +102,59 @@ def swap_negative_loss(swapped_logits: Tensor, window: Tensor) -> Tensor:
     p = torch.softmax(swapped_logits.float().flatten(2), dim=-1)
     q = (p * window.flatten(2)).sum(-1).clamp(0.0, 1.0 - 1e-6)  # (B, V)
     return -torch.log1p(-q).mean(-1)
+
+
+def contrast_instructions(
+    run: Callable[..., NetworkOutput],
+    out: NetworkOutput,
+    tasks: list[str],
+    instruction_tasks: dict[str, str],
+    weight: float,
+    heads_sigma_px: float,
+    side_tilt_deg: float = 0.0,
+) -> NetworkOutput:
+    """``out`` with its translation logits contrasted against the task's other instructions
+    (:func:`contrasted_logits`) and its heads run again at the contrasted point, pooled there (a Gaussian of
+    ``heads_sigma_px``) as training pools them at the target; ``out`` unchanged when no sample's task has another
+    instruction. ``run(instructions, head_heatmap=None, head_uv=None)`` runs the network on the same views."""
+    alternatives = task_alternatives(tasks, instruction_tasks)
+    others, valid = [], []
+    for k in range(max(map(len, alternatives), default=0)):
+        # samples with fewer alternatives repeat their own instruction, masked out of the mean
+        asked = [alt[k] if k < len(alt) else own for alt, own in zip(alternatives, tasks, strict=True)]
+        others.append(run(asked).trans)
+        valid.append(torch.tensor([k < len(alt) for alt in alternatives], device=out.trans.device))
+    if not others:
+        return out
+    trans = contrasted_logits(out.trans, torch.stack(others), torch.stack(valid), weight)
+    uv = predicted_uv(trans, side_tilt_deg)
+    pooled = run(tasks, head_heatmap=gaussian_heatmaps(uv, trans.shape[-1], sigma=heads_sigma_px), head_uv=uv)
+    pooled.trans = trans
+    return pooled
+
+
+def instruction_negatives(
+    run_rows: Callable[[Tensor, list[str]], NetworkOutput],
+    tasks: list[str],
+    first: list[bool],
+    instruction_tasks: dict[str, str],
+    target_uv: Tensor,
+    window_sigma_px: float,
+    generator: torch.Generator,
+) -> Tensor:
+    """(B,) the unlikelihood (:func:`swap_negative_loss`) of each first frame's own target, at ``target_uv``
+    (B, V, 2), under another instruction of its task drawn from ``generator``; 0 for the other samples.
+    ``run_rows(rows, instructions)`` runs the network once on those rows of the batch under those instructions."""
+    b = len(tasks)
+    negative = torch.zeros(b, device=target_uv.device)
+    alternatives = task_alternatives(tasks, instruction_tasks)
+    rows = [i for i in range(b) if alternatives[i] and first[i]]
+    if not rows:
+        return negative
+    draws = torch.randint(0, 2**31 - 1, (len(rows),), generator=generator).tolist()
+    asked = [alternatives[i][d % len(alternatives[i])] for i, d in zip(rows, draws, strict=True)]
+    idx = torch.tensor(rows, device=target_uv.device)
+    out = run_rows(idx, asked)
+    window = gaussian_heatmaps(target_uv[idx], out.trans.shape[-1], sigma=window_sigma_px)
+    window = window / window.amax((-2, -1), keepdim=True).clamp_min(1e-12)
+    return negative.index_put((idx,), swap_negative_loss(out.trans, window))

@@ -4,11 +4,12 @@ Per sample and frame (current frame i, and in training its goal, keyframe i+1, f
 ``observation_delta_indices=[0, 1]``):
 
 1. Each camera's metric depth + intrinsics + camera-to-world extrinsics -> world points, coloured by its RGB;
-   all cameras are concatenated into one cloud (B, N, 3).
+   all cameras are concatenated into one cloud (B, N, 3) (``observation.py``, which reads every batch field).
 2. Training only: SE(3) augmentation (±``aug_translation_range`` m, ±``aug_yaw_range_deg`` yaw about the target
-   position; the goal gets its own draw, pivoting on the goal frame's end-effector position).
-3. Crop to ``scene_bounds``, map to the canonical cube [-1, 1]^3, render 5 orthographic virtual views
-   (B, 5, 10, img_size, img_size); training adds the uniform render noise of docs/method.md §4.3 on channels 0-6.
+   position; the goal gets its own draw, pivoting on the goal frame's end-effector position; ``augmentation.py``).
+3. Crop to the sample's box (``scene_bounds``, or its task's with ``per_task_bounds``), map to the canonical cube
+   [-1, 1]^3 (``pointcloud.py``), render 5 orthographic virtual views (B, 5, 10, img_size, img_size;
+   ``renderer.py``); training adds the uniform render noise of docs/method.md §4.3 on channels 0-6.
 4. The network (``network.py``) with frozen, cached text-encoder tokens of ``task``.
 
 Losses (docs/method.md §6.1, §7; ``behaviour_cloning.py``): translation = soft-target cross-entropy of each view's
@@ -34,19 +35,21 @@ from lerobot.policies.pretrained import PreTrainedPolicy
 from lerobot.utils.constants import ACTION, OBS_STATE
 from torch import Tensor
 
-from sigma_data.contract import STATE_QUAT, TIMESTAMP
+from sigma_data.contract import STATE_QUAT
 from sigma_policy import lerobot_patches
-from sigma_policy.augmentation import se3_augment
+from sigma_policy.augmentation import add_render_noise, se3_augment
 from sigma_policy.behaviour_cloning import bc_losses
 from sigma_policy.compat import match_saved_modules
 from sigma_policy.configuration_sigma import SigmaConfig
 from sigma_policy.contrastive import contrastive_losses, instruction_ids
+from sigma_policy.ensemble import check_members, mean_probability_logits
 from sigma_policy.heatmap import gaussian_heatmaps, heatmap_to_cube_point
-from sigma_policy.instruction_contrast import contrasted_logits, swap_negative_loss, task_alternatives
+from sigma_policy.instruction_contrast import contrast_instructions, instruction_negatives
 from sigma_policy.network import NetworkOutput, SigmaNetwork, predicted_uv
-from sigma_policy.pointcloud import bounds_mask, cube_to_world, depth_to_world_points, world_to_cube
+from sigma_policy.observation import Cloud, batch_tasks, camera_cloud, first_frames, proprio_input, take
+from sigma_policy.pointcloud import cloud_box, crop_to_cube, cube_to_world, world_to_cube
 from sigma_policy.renderer import VirtualViewRenderer
-from sigma_policy.rotation import bins_to_quat, quat_to_matrix
+from sigma_policy.rotation import bins_to_quat
 from sigma_policy.test_time import (
     EnsemblePass,
     consensus,
@@ -60,10 +63,6 @@ from sigma_policy.text_encoder import make_text_encoder
 def _cpu_has_bf16() -> bool:
     """Whether oneDNN runs bf16 natively on this CPU (AVX512-BF16 or AMX); elsewhere bf16 is emulated and slower."""
     return bool(torch.backends.mkldnn.is_available() and torch.ops.mkldnn._is_mkldnn_bf16_supported())
-
-
-NOISY_CHANNELS = 7  # xyz, rgb, depth get the render noise; the 3 pixel-location channels do not
-MM_PER_M = 1000.0
 
 
 @dataclass
@@ -82,12 +81,6 @@ class SigmaPrediction:
     collision_probs: Tensor  # (B, 2) [avoid, ignore]
     cloud_points: Tensor  # (B, N, 3) fused world-frame input cloud, metres (NaN where depth was invalid)
     cloud_colors: Tensor  # (B, N, 3) its RGB in [0, 1]
-
-
-@dataclass
-class _Cloud:
-    points: Tensor  # (B, N, 3) world metres; NaN where depth was invalid
-    colors: Tensor  # (B, N, 3) RGB in [0, 1]
 
 
 class SigmaPolicy(PreTrainedPolicy):
@@ -142,6 +135,8 @@ class SigmaPolicy(PreTrainedPolicy):
             "scene_bounds", torch.tensor(config.scene_bounds, dtype=torch.float32), persistent=False
         )
         self.last_prediction: SigmaPrediction | None = None
+        # Further trained policies this one acts with (sigma_policy/ensemble.py); not part of this one's weights.
+        self.__dict__["ensemble_members"] = []
 
     @classmethod
     def from_pretrained(cls, pretrained_name_or_path: Any, *, config: SigmaConfig | None = None, **kwargs):
@@ -181,6 +176,12 @@ class SigmaPolicy(PreTrainedPolicy):
     def reset(self) -> None:
         self.last_prediction = None
 
+    def add_ensemble_members(self, members: list[SigmaPolicy], names: list[str]) -> None:
+        """Act from now on with ``members`` (policies trained on the same data, in eval mode on this policy's
+        device) as one ensemble (sigma_policy/ensemble.py); ``names`` name them in errors (their checkpoints)."""
+        check_members(self.config, [m.config for m in members], names)
+        self.__dict__["ensemble_members"] = list(members)
+
     @torch.no_grad()
     def select_action(self, batch: dict[str, Any], **kwargs) -> Tensor:
         """(B, 9) next-keyframe action for a batch of single observations (no time dimension)."""
@@ -201,13 +202,13 @@ class SigmaPolicy(PreTrainedPolicy):
         action = batch[ACTION].float()
         if action.ndim != 2 or action.shape[1] != 9:
             raise ValueError(f"batch['action'] must be (B, 9), got {tuple(action.shape)}")
-        tasks = self._tasks(batch, action.shape[0])
+        tasks = batch_tasks(batch, action.shape[0])
         bounds = self._bounds(tasks)
 
         views, pos, quat, transforms = self._augmented_views(batch, 0, action[:, :3], action[:, 3:7], bounds)
         goal_views = None
         if cfg.use_contrastive:
-            state = self._take(batch, OBS_STATE, t=1, item_ndim=1).float()
+            state = take(batch, OBS_STATE, t=1, item_ndim=1).float()
             goal_views, *_ = self._augmented_views(batch, 1, state[:, :3], state[:, STATE_QUAT], bounds)
 
         target_uv = self.renderer.project(world_to_cube(pos[:, None], bounds))[:, 0]  # (B, V, 2)
@@ -296,7 +297,7 @@ class SigmaPolicy(PreTrainedPolicy):
         )
 
     def _predict_pass(
-        self, cloud: _Cloud, tasks: list[str], bounds: Tensor, batch: dict[str, Any], degrees: float = 0.0
+        self, cloud: Cloud, tasks: list[str], bounds: Tensor, batch: dict[str, Any], degrees: float = 0.0
     ) -> tuple[Tensor, NetworkOutput, EnsemblePass]:
         """One inference pass over ``cloud`` turned by ``degrees`` about the box's vertical centre line (and the
         gripper's pose with it; sigma_policy/test_time.py): the rendered views, the network's output and the
@@ -306,8 +307,22 @@ class SigmaPolicy(PreTrainedPolicy):
         points = transform_points(T, cloud.points) if T is not None else cloud.points
         views = self._render(points, cloud.colors, bounds)
         out = self._run_network(views, tasks, batch, bounds, transforms=T)
+        if self.ensemble_members:
+            out = self._ensemble_output(views, tasks, batch, bounds, T, out)
         if cfg.instruction_contrast:
-            out = self._contrast_instructions(views, tasks, batch, bounds, T, out)
+
+            def run(asked: list[str], **heads: Tensor) -> NetworkOutput:
+                return self._run_network(views, asked, batch, bounds, transforms=T, **heads)
+
+            out = contrast_instructions(
+                run,
+                out,
+                tasks,
+                cfg.instruction_tasks,
+                cfg.instruction_contrast,
+                cfg.gt_heatmap_sigma,
+                cfg.side_tilt_deg,
+            )
         point_cube = heatmap_to_cube_point(
             out.trans.float(), cfg.img_size, refine_px=cfg.heatmap_refine_px, side_tilt_deg=cfg.side_tilt_deg
         )
@@ -324,7 +339,7 @@ class SigmaPolicy(PreTrainedPolicy):
         )
         return views, out, prediction
 
-    def _contrast_instructions(
+    def _ensemble_output(
         self,
         views: Tensor,
         tasks: list[str],
@@ -333,34 +348,28 @@ class SigmaPolicy(PreTrainedPolicy):
         transforms: Tensor | None,
         out: NetworkOutput,
     ) -> NetworkOutput:
-        """``out`` with its translation logits contrasted against the task's other instructions
-        (sigma_policy/instruction_contrast.py) and its heads run again at the contrasted point, pooled there as
-        training pools them at the target; ``out`` unchanged when no sample's task has another instruction."""
+        """The ensemble's output for one pass (sigma_policy/ensemble.py): this policy's ``out`` and every member's
+        heatmaps averaged in probability, then every policy's heads run at the common point and averaged."""
         cfg = self.config
-        alternatives = task_alternatives(tasks, cfg.instruction_tasks)
-        others, valid = [], []
-        for k in range(max(map(len, alternatives), default=0)):
-            # samples with fewer alternatives repeat their own instruction, masked out of the mean
-            asked = [alt[k] if k < len(alt) else own for alt, own in zip(alternatives, tasks, strict=True)]
-            others.append(self._run_network(views, asked, batch, bounds, transforms=transforms).trans)
-            valid.append(torch.tensor([k < len(alt) for alt in alternatives], device=views.device))
-        if not others:
-            return out
-        trans = contrasted_logits(
-            out.trans, torch.stack(others), torch.stack(valid), cfg.instruction_contrast
-        )
+        policies = [self, *self.ensemble_members]
+        outs = [out] + [
+            m._run_network(views, tasks, batch, bounds, transforms=transforms) for m in policies[1:]
+        ]
+        trans = mean_probability_logits([o.trans for o in outs], event_dims=2)  # per view
         uv = predicted_uv(trans, cfg.side_tilt_deg)
-        pooled = self._run_network(
-            views,
-            tasks,
-            batch,
-            bounds,
-            transforms=transforms,
-            head_heatmap=gaussian_heatmaps(uv, cfg.img_size, sigma=cfg.gt_heatmap_sigma),
-            head_uv=uv,
-        )
-        pooled.trans = trans
-        return pooled
+        heatmap = gaussian_heatmaps(uv, cfg.img_size, sigma=cfg.gt_heatmap_sigma)
+        pooled = [
+            p._run_network(
+                views, tasks, batch, bounds, transforms=transforms, head_heatmap=heatmap, head_uv=uv
+            )
+            for p in policies
+        ]
+        result = pooled[0]
+        result.trans = trans
+        result.rot_logits = mean_probability_logits([o.rot_logits for o in pooled])
+        result.grip_logits = mean_probability_logits([o.grip_logits for o in pooled])
+        result.collision_logits = mean_probability_logits([o.collision_logits for o in pooled])
+        return result
 
     @torch.no_grad()
     def input_cloud(self, batch: dict[str, Any]) -> tuple[Tensor, Tensor, Tensor]:
@@ -370,49 +379,18 @@ class SigmaPolicy(PreTrainedPolicy):
         return cloud.points, cloud.colors, bounds
 
     # ------------------------------------------------------------------ internals
-    def _inference_scene(self, batch: dict[str, Any]) -> tuple[_Cloud, list[str], Tensor]:
+    def _inference_scene(self, batch: dict[str, Any]) -> tuple[Cloud, list[str], Tensor]:
         """The first frame's cloud, the instructions and the boxes inference renders them in."""
         cloud = self._cloud(batch, t=0)
-        tasks = self._tasks(batch, cloud.points.shape[0])
+        tasks = batch_tasks(batch, cloud.points.shape[0])
         bounds = self._bounds(tasks)
         if self.config.place_with_mean_at_eval:
-            bounds = self._cloud_box(cloud.points, bounds)
+            bounds = cloud_box(cloud.points, bounds)
         return cloud, tasks, bounds
-
-    def _check_depth_unit(self, depth_m: Tensor, key: str) -> None:
-        """Fail fast (once) when depth is clearly not in ``depth_unit`` (e.g. millimetres read as metres)."""
-        valid = depth_m[torch.isfinite(depth_m) & (depth_m > 0)]
-        if valid.numel() == 0:
-            raise ValueError(f"depth feature '{key}' has no valid (finite, > 0) pixel in this batch")
-        median = float(valid.median())
-        if not 0.02 < median < 50.0:
-            raise ValueError(
-                f"depth feature '{key}' has median {median:.4g} m when read as policy.depth_unit="
-                f"'{self.config.depth_unit}'; set --policy.depth_unit to the unit the dataset returns "
-                "(LeRobot's --dataset.depth_output_unit, default 'mm')"
-            )
-        self._depth_checked = True
 
     @property
     def _device(self) -> torch.device:
         return self.network.pos_encoding.device
-
-    @staticmethod
-    def _take(batch: dict[str, Any], key: str, t: int, item_ndim: int) -> Tensor:
-        """Frame ``t`` of ``batch[key]``: (B, T, *item) -> (B, *item); (B, *item) is frame 0 (inference)."""
-        if key not in batch:
-            raise KeyError(
-                f"sigma: batch has no '{key}' (keys: {sorted(k for k in batch if k.startswith('obs'))})"
-            )
-        x = batch[key]
-        if x.ndim == item_ndim + 2:
-            return x[:, t]
-        if x.ndim == item_ndim + 1 and t == 0:
-            return x
-        raise ValueError(
-            f"sigma: '{key}' has shape {tuple(x.shape)}; expected (B, {'T, ' if t else ''}...) with a "
-            f"{item_ndim}-D item" + ("; the goal frame needs observation_delta_indices=[0, 1]" if t else "")
-        )
 
     def _frame_weights(self, batch: dict[str, Any], bc: Tensor) -> Tensor:
         """(B,) BC weights: ``first_keyframe_weight`` on an episode's first frame (timestamp 0), 1 elsewhere, scaled
@@ -420,19 +398,9 @@ class SigmaPolicy(PreTrainedPolicy):
         w = self.config.first_keyframe_weight
         if w == 1.0:
             return torch.ones_like(bc)
-        first = self._first_frames(batch, bc.shape[0], bc.device, "first_keyframe_weight")
+        first = first_frames(batch, bc.shape[0], bc.device, "first_keyframe_weight")
         weights = torch.where(first, w, 1.0).to(bc.dtype)
         return weights / weights.mean()
-
-    @staticmethod
-    def _first_frames(batch: dict[str, Any], b: int, device: torch.device, option: str) -> Tensor:
-        """(B,) bool: which samples are their episode's first frame (timestamp 0); ``option`` names who asks."""
-        if TIMESTAMP not in batch:
-            raise KeyError(f"sigma: {option} needs the batch's '{TIMESTAMP}'")
-        first = torch.as_tensor(batch[TIMESTAMP], device=device).reshape(-1) < 1e-6
-        if first.shape != (b,):
-            raise ValueError(f"sigma: '{TIMESTAMP}' has {first.numel()} entries for a batch of {b}")
-        return first
 
     def _instruction_negatives(
         self,
@@ -443,34 +411,27 @@ class SigmaPolicy(PreTrainedPolicy):
         transforms: Tensor,
         target_uv: Tensor,
     ) -> Tensor:
-        """(B,) the unlikelihood of each first frame's own target under another instruction of its task, drawn at
-        random (sigma_policy/instruction_contrast.py); 0 for the other samples. One network run on those rows."""
-        cfg = self.config
+        """(B,) each first frame's instruction negative (sigma_policy/instruction_contrast.py), the other instruction
+        drawn from the policy's own stream; one network run on those rows."""
         b = len(tasks)
-        negative = torch.zeros(b, device=views.device)
-        alternatives = task_alternatives(tasks, cfg.instruction_tasks)
-        first = self._first_frames(batch, b, views.device, "instruction_negative_weight").tolist()
-        rows = [i for i in range(b) if alternatives[i] and first[i]]
-        if not rows:
-            return negative
-        draws = torch.randint(0, 2**31 - 1, (len(rows),), generator=self._negative_draws).tolist()
-        asked = [alternatives[i][d % len(alternatives[i])] for i, d in zip(rows, draws, strict=True)]
-        idx = torch.tensor(rows, device=views.device)
-        sub = {k: v[idx] if isinstance(v, Tensor) and v.shape[:1] == (b,) else v for k, v in batch.items()}
-        out = self._run_network(views[idx], asked, sub, bounds[idx], transforms=transforms[idx])
-        window = gaussian_heatmaps(target_uv[idx], cfg.img_size, sigma=cfg.instruction_negative_sigma_px)
-        window = window / window.amax((-2, -1), keepdim=True).clamp_min(1e-12)
-        return negative.index_put((idx,), swap_negative_loss(out.trans, window))
 
-    @staticmethod
-    def _tasks(batch: dict[str, Any], b: int) -> list[str]:
-        if "task" not in batch:
-            raise KeyError("sigma: batch has no 'task' (the language instruction)")
-        tasks = batch["task"]
-        tasks = [tasks] if isinstance(tasks, str) else list(tasks)
-        if len(tasks) != b:
-            raise ValueError(f"sigma: {len(tasks)} task strings for a batch of {b}")
-        return tasks
+        def run_rows(idx: Tensor, asked: list[str]) -> NetworkOutput:
+            sub = {
+                k: v[idx] if isinstance(v, Tensor) and v.shape[:1] == (b,) else v for k, v in batch.items()
+            }
+            return self._run_network(views[idx], asked, sub, bounds[idx], transforms=transforms[idx])
+
+        first = first_frames(batch, b, views.device, "instruction_negative_weight").tolist()
+        cfg = self.config
+        return instruction_negatives(
+            run_rows,
+            tasks,
+            first,
+            cfg.instruction_tasks,
+            target_uv,
+            cfg.instruction_negative_sigma_px,
+            self._negative_draws,
+        )
 
     def _bounds(self, tasks: list[str]) -> Tensor:
         """(B, 6) world box of each sample: its instruction's task box with ``per_task_bounds`` (an instruction
@@ -498,36 +459,11 @@ class SigmaPolicy(PreTrainedPolicy):
             return instruction_ids([cfg.instruction_tasks.get(s, s) for s in instructions], device=device)
         return instruction_ids(instructions, device=device) if cfg.mask_same_instruction else None
 
-    def _cloud(self, batch: dict[str, Any], t: int) -> _Cloud:
-        """Fused world-frame point cloud of all cameras at frame ``t``."""
-        scale = 1 / MM_PER_M if self.config.depth_unit == "mm" else 1.0
-        points, colors = [], []
-        for cam in self.cameras:
-            keys = self.config.camera_keys(cam)
-            rgb = self._take(batch, keys["rgb"], t, 3).float()
-            depth = self._take(batch, keys["depth"], t, 3).float()[:, 0] * scale
-            K = self._take(batch, keys["intrinsics"], t, 2).float()
-            E = self._take(batch, keys["extrinsics"], t, 2).float()
-            if not self._depth_checked:
-                self._check_depth_unit(depth, keys["depth"])
-            if rgb.shape[-2:] != depth.shape[-2:]:
-                raise ValueError(
-                    f"camera '{cam}': RGB {tuple(rgb.shape)} and depth {tuple(depth.shape)} differ"
-                )
-            points.append(depth_to_world_points(depth, K, E).flatten(1, 2))
-            colors.append(rgb.flatten(2).transpose(1, 2))
-        return _Cloud(points=torch.cat(points, 1), colors=torch.cat(colors, 1).clamp(0, 1))
-
-    @staticmethod
-    def _cloud_box(points: Tensor, bounds: Tensor) -> Tensor:
-        """RVT-1 eval centring: per-sample axis-aligned box of the in-bounds points (B, 6)."""
-        mask = bounds_mask(points, bounds)
-        inf = torch.tensor(float("inf"), device=points.device)
-        lo = torch.where(mask[..., None], points, inf).amin(1)
-        hi = torch.where(mask[..., None], points, -inf).amax(1)
-        if not torch.isfinite(lo).all():
-            raise ValueError("place_with_mean_at_eval: a sample has no points inside scene_bounds")
-        return torch.cat([lo, hi], -1)
+    def _cloud(self, batch: dict[str, Any], t: int) -> Cloud:
+        """Fused world-frame point cloud of all cameras at frame ``t`` (the depth unit checked on the first)."""
+        cloud = camera_cloud(batch, self.config, t, check_depth=not self._depth_checked)
+        self._depth_checked = True
+        return cloud
 
     def _augmented_views(
         self, batch: dict[str, Any], t: int, pos: Tensor, quat: Tensor, bounds: Tensor
@@ -543,38 +479,14 @@ class SigmaPolicy(PreTrainedPolicy):
             xyz_range=self.config.aug_translation_range,
             yaw_range_deg=self.config.aug_yaw_range_deg,
         )
-        return self._add_render_noise(self._render(points, cloud.colors, bounds)), pos, quat, transforms
+        views = add_render_noise(self._render(points, cloud.colors, bounds), self.config.image_noise)
+        return views, pos, quat, transforms
 
     def _render(self, points: Tensor, colors: Tensor, bounds: Tensor) -> Tensor:
         """Crop to ``bounds`` ((6,) shared or (B, 6) per sample), map to the cube and render (B, V, 10, H, W)."""
-        mask = bounds_mask(points, bounds)
-        # Keep only in-bounds points (padded to the largest count in the batch): rendering cost scales with N.
-        keep = int(mask.sum(1).max())
-        order = torch.argsort(mask.to(torch.int8), dim=1, descending=True, stable=True)[:, :keep]
-        points = points.gather(1, order[..., None].expand(-1, -1, 3))
-        colors = colors.gather(1, order[..., None].expand(-1, -1, colors.shape[-1]))
-        mask = mask.gather(1, order)
-        cube = world_to_cube(points, bounds)
-        cube = torch.where(mask[..., None], cube, torch.zeros_like(cube))
+        cube, colors, mask = crop_to_cube(points, colors, bounds)
         with torch.no_grad():
             return self.renderer(cube, colors, mask)
-
-    def _site(self, batch: dict[str, Any], t: int, transforms: Tensor | None = None) -> Tensor:
-        """(B, 3) the grip site's world position at frame ``t`` (``observation.state[:3]``), moved by the
-        augmentation ``transforms`` (B, 4, 4) when given."""
-        pos = self._take(batch, OBS_STATE, t, 1).float()[:, :3].to(self._device)
-        if transforms is None:
-            return pos
-        return transform_points(transforms, pos)
-
-    def _add_render_noise(self, views: Tensor) -> Tensor:
-        """Uniform noise U(-s, s), s = image_noise · U(0, 1) per batch, on channels 0-6, then clamp to [-1, 1]."""
-        if self.config.image_noise <= 0:
-            return views
-        stdv = self.config.image_noise * torch.rand((), device=views.device)
-        noisy = views[:, :, :NOISY_CHANNELS]
-        noisy = (noisy + (torch.rand_like(noisy) * 2 - 1) * stdv).clamp(-1, 1)
-        return torch.cat([noisy, views[:, :, NOISY_CHANNELS:]], dim=2)
 
     def _language(self, tasks: list[str]) -> tuple[Tensor, Tensor]:
         """(B, L, D_tok) tokens and (B, D_sent) sentence features, cached on the policy device per instruction."""
@@ -591,22 +503,8 @@ class SigmaPolicy(PreTrainedPolicy):
         return tokens, sentence
 
     def _proprio(self, batch: dict[str, Any], bounds: Tensor, transforms: Tensor | None) -> Tensor | None:
-        """The proprio token's input: [gripper_open, finger_q1, finger_q2] (+ the grip site's position in the
-        scene box with ``proprio_position``, + its orientation as the first two columns of its rotation matrix with
-        ``proprio_orientation``; both moved by the same augmentation as the cloud)."""
-        if not self.config.use_proprio:
-            return None
-        state = self._take(batch, OBS_STATE, 0, 1).float()
-        parts = [state[:, 7:10]]
-        rotation = transforms[:, :3, :3].to(state) if transforms is not None else None
-        if self.config.proprio_position:
-            parts.append(world_to_cube(self._site(batch, 0, transforms).to(state), bounds))
-        if self.config.proprio_orientation:
-            R = quat_to_matrix(state[:, STATE_QUAT])
-            if rotation is not None:
-                R = rotation @ R
-            parts.append(R[:, :, :2].transpose(1, 2).flatten(1))  # columns x, y: continuous, sign-free
-        return torch.cat(parts, dim=-1)
+        """The proprio token's input (sigma_policy/observation.py, ``proprio_input``)."""
+        return proprio_input(batch, self.config, bounds, transforms, self._device)
 
     def _run_network(
         self,

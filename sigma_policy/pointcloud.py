@@ -25,6 +25,8 @@ from sigma_policy.rotation import quat_to_matrix
 __all__ = [
     "PANDA_HAND_BOX",
     "bounds_mask",
+    "cloud_box",
+    "crop_to_cube",
     "cube_to_world",
     "depth_to_camera_points",
     "depth_to_world_points",
@@ -158,3 +160,31 @@ def cube_to_world(pts_cube: Tensor, bounds: Tensor | Sequence[float]) -> Tensor:
     """Inverse of :func:`world_to_cube`: ``p / scale + mid`` (metres)."""
     mid, scale = _mid_scale(bounds, pts_cube)
     return pts_cube / scale + mid
+
+
+def crop_to_cube(
+    points: Tensor, colors: Tensor, bounds: Tensor | Sequence[float]
+) -> tuple[Tensor, Tensor, Tensor]:
+    """The points ``(B, N, 3)`` inside ``bounds`` in cube coordinates, with their colours ``(B, N, C)`` and mask:
+    ``(cube (B, M, 3), colors (B, M, C), mask (B, M))``. Only in-bounds points are kept, each sample padded (mask
+    False, cube point 0) to the largest count in the batch, so what consumes them costs what the box holds."""
+    mask = bounds_mask(points, bounds)
+    keep = int(mask.sum(1).max())
+    order = torch.argsort(mask.to(torch.int8), dim=1, descending=True, stable=True)[:, :keep]
+    points = points.gather(1, order[..., None].expand(-1, -1, 3))
+    colors = colors.gather(1, order[..., None].expand(-1, -1, colors.shape[-1]))
+    mask = mask.gather(1, order)
+    cube = torch.where(mask[..., None], world_to_cube(points, bounds), torch.zeros_like(points))
+    return cube, colors, mask
+
+
+def cloud_box(points: Tensor, bounds: Tensor | Sequence[float]) -> Tensor:
+    """``(B, 6)`` per-sample axis-aligned box of the points ``(B, N, 3)`` inside ``bounds`` (RVT-1's evaluation
+    centring, ``place_with_mean``)."""
+    mask = bounds_mask(points, bounds)
+    inf = torch.tensor(float("inf"), device=points.device)
+    lo = torch.where(mask[..., None], points, inf).amin(1)
+    hi = torch.where(mask[..., None], points, -inf).amax(1)
+    if not torch.isfinite(lo).all():
+        raise ValueError("place_with_mean_at_eval: a sample has no points inside scene_bounds")
+    return torch.cat([lo, hi], -1)

@@ -45,20 +45,20 @@ points only, so the working set stays in cache; the samples of a batch are share
 ``torch.get_num_threads()`` Python threads (PyTorch kernels release the GIL; each thread has its own scratch
 memory; intra-op threading is paused meanwhile). Scratch memory is reused across calls, and so is the output
 tensor once the caller has dropped every reference to it (checked with its storage's use count): a fresh
-multi-megabyte allocation is page-faulted in on first touch, which costs more than the arithmetic of a render.
+multi-megabyte allocation is page-faulted in on first touch, which costs more than the arithmetic of a render
+(sigma_policy/render_memory.py).
 """
 
 from __future__ import annotations
 
 import math
 import sys
-import threading
 from collections.abc import Callable
-from concurrent.futures import ThreadPoolExecutor
 
 import torch
 from torch import Tensor, nn
 
+from sigma_policy.render_memory import Workspace, cpu_pool, output_pool, workspace
 from sigma_policy.views import VIEW_AXES, VIEW_NAMES, project_points, tilted_coordinates, view_axes
 
 __all__ = ["VIEW_AXES", "VIEW_NAMES", "VirtualViewRenderer", "project_points"]
@@ -82,91 +82,6 @@ _SCATTER_MODES = ("auto", "dummy", "spread", "compact")
 _OFF_IMAGE = (
     1e30  # added (times the squared pixel overshoot >= 1) to the squared distance of off-image pixels
 )
-
-
-class _Workspace:
-    """Named scratch tensors. With ``reuse`` (CPU) they persist across calls: a fresh large CPU allocation is
-    page-faulted in on first touch, which costs more than the arithmetic of a render. Without it (CUDA, whose
-    caching allocator already recycles memory) every request is a new ``torch.empty``."""
-
-    def __init__(self, reuse: bool) -> None:
-        self.reuse = reuse
-        self._store: dict[str, Tensor] = {}
-
-    def get(self, name: str, shape: tuple[int, ...], dtype: torch.dtype, device: torch.device) -> Tensor:
-        numel = math.prod(shape)
-        if not self.reuse:
-            return torch.empty(shape, dtype=dtype, device=device)
-        t = self._store.get(name)
-        if t is None or t.dtype != dtype or t.device != device or t.numel() < numel:
-            t = self._store[name] = torch.empty(numel, dtype=dtype, device=device)
-        return t[:numel].view(shape)
-
-
-_CPU_WORKSPACES = threading.local()  # one per thread, so concurrent renders never share scratch memory
-
-
-def _workspace(device: torch.device) -> _Workspace:
-    if device.type != "cpu":
-        return _Workspace(reuse=False)
-    # Tensors made under torch.inference_mode() cannot be updated in place outside it (and vice versa would
-    # leak inference tensors into autograd code): keep one workspace per mode.
-    name = "ws_inference" if torch.is_inference_mode_enabled() else "ws"
-    if not hasattr(_CPU_WORKSPACES, name):
-        setattr(_CPU_WORKSPACES, name, _Workspace(reuse=True))
-    return getattr(_CPU_WORKSPACES, name)
-
-
-_STORAGE_USE_COUNT = getattr(torch._C, "_storage_Use_Count", None)  # what torch's CUDA-graph trees use, too
-
-
-class _OutputPool:
-    """CPU output tensors handed out again once nothing outside the pool references their memory.
-
-    The pool keeps a base tensor per output and returns a new tensor on the same storage (not an autograd view),
-    so every tensor or view the caller still holds -- or autograd saved for backward -- counts in the storage's use
-    count; a base is reused only when the pool's own reference is the last one. Without the use-count function
-    (a future torch), every request allocates."""
-
-    def __init__(self, keep: int = 2, max_bytes: int = 1 << 30) -> None:
-        self.keep, self.max_bytes = keep, max_bytes
-        self._bases: list[Tensor] = []
-
-    @staticmethod
-    def _unreferenced(base: Tensor) -> bool:
-        storage = base.untyped_storage()  # this Python handle is a reference of its own: 2 = base + handle
-        return _STORAGE_USE_COUNT(storage._cdata) <= 2
-
-    def get(self, shape: tuple[int, ...]) -> Tensor:
-        numel = math.prod(shape)
-        if _STORAGE_USE_COUNT is None or 4 * numel > self.max_bytes:
-            return torch.empty(shape)
-        base = next((b for b in self._bases if b.numel() == numel and self._unreferenced(b)), None)
-        if base is None:
-            base = torch.empty(numel)
-            self._bases = [*self._bases, base][-self.keep :]
-        else:  # most recently used last, so the list keeps the live ones
-            self._bases = [b for b in self._bases if b is not base] + [base]
-        return torch.empty(0).set_(base.untyped_storage(), 0, shape)
-
-
-def _output_pool() -> _OutputPool:
-    name = "pool_inference" if torch.is_inference_mode_enabled() else "pool"
-    if not hasattr(_CPU_WORKSPACES, name):
-        setattr(_CPU_WORKSPACES, name, _OutputPool())
-    return getattr(_CPU_WORKSPACES, name)
-
-
-_POOLS: dict[int, ThreadPoolExecutor] = {}
-_POOL_LOCK = threading.Lock()
-
-
-def _cpu_pool(threads: int) -> ThreadPoolExecutor:
-    """A process-wide pool of ``threads`` render threads (created once per size)."""
-    with _POOL_LOCK:
-        if threads not in _POOLS:
-            _POOLS[threads] = ThreadPoolExecutor(threads, thread_name_prefix="sigma-render")
-        return _POOLS[threads]
 
 
 def _one_plus(c: Tensor, sign: int, out: Tensor) -> Tensor:
@@ -250,7 +165,7 @@ class VirtualViewRenderer(nn.Module):
             index = win & _LOW32
             empty = index == N
         else:  # flat indices b*N + n over the batch; B*N marks an empty pixel
-            win = self._batch_keys(pts, ignore, mode, _workspace(dev))[1:].view(B, V, S * S)
+            win = self._batch_keys(pts, ignore, mode, workspace(dev))[1:].view(B, V, S * S)
             flat = win & _LOW32
             empty = flat == B * N
             index = flat - (torch.arange(B, device=dev) * N).view(B, 1, 1)
@@ -279,7 +194,7 @@ class VirtualViewRenderer(nn.Module):
         )
         return pts, valid.to(torch.int32).sub_(1), mode
 
-    def _sample_keys_cpu(self, pts: Tensor, ignore: Tensor, mode: str, ws: _Workspace) -> Tensor:
+    def _sample_keys_cpu(self, pts: Tensor, ignore: Tensor, mode: str, ws: Workspace) -> Tensor:
         """One sample's z-buffer (CPU) as packed keys ``(V, H*W)`` (memory of ``ws``): pixel ``(v, i, j)`` holds
         ``depth_bits << 32 | n`` of its winner ``n`` or, if empty, ``+inf bits << 32 | N``
         (larger than every real key). The buffer behind it starts with the dummy slot 0."""
@@ -293,7 +208,7 @@ class VirtualViewRenderer(nn.Module):
             buf.fill_(empty)
         return buf[1:size].view(self.num_views, -1)
 
-    def _batch_keys(self, pts: Tensor, ignore: Tensor, mode: str, ws: _Workspace) -> Tensor:
+    def _batch_keys(self, pts: Tensor, ignore: Tensor, mode: str, ws: Workspace) -> Tensor:
         """The whole batch's z-buffer in one pass (CUDA) as packed keys ``(1 + B*V*H*W,)``: slot 0 is a dummy,
         then pixel ``(b, v, i, j)`` at ``1 + ((b*V + v)*H + i)*W + j`` holds ``depth_bits << 32 |
         (b*N + n)`` of its winner ``n`` or, if empty, ``+inf bits << 32 | B*N``."""
@@ -309,7 +224,7 @@ class VirtualViewRenderer(nn.Module):
             )
         return buf[:size]
 
-    def _run_samples_cpu(self, B: int, job: Callable[[int, _Workspace], object]) -> None:
+    def _run_samples_cpu(self, B: int, job: Callable[[int, Workspace], object]) -> None:
         """Runs ``job(b, workspace)`` for every sample: serially, or with ``torch.get_num_threads()`` > 1 and a
         batch, on that many threads (each with its own workspace; jobs write disjoint memory, so the result is
         identical to the serial one). Splitting one sample among threads was measured slower than one thread."""
@@ -319,7 +234,7 @@ class VirtualViewRenderer(nn.Module):
 
         def run(b: int) -> None:
             with torch.inference_mode(inference), torch.no_grad():
-                job(b, _workspace(torch.device("cpu")))
+                job(b, workspace(torch.device("cpu")))
 
         if threads <= 1:
             for b in range(B):
@@ -328,7 +243,7 @@ class VirtualViewRenderer(nn.Module):
         # The render threads are the parallelism; intra-op threads on top of them would oversubscribe the cores.
         torch.set_num_threads(1)
         try:
-            for future in [_cpu_pool(threads).submit(run, b) for b in range(B)]:
+            for future in [cpu_pool(threads).submit(run, b) for b in range(B)]:
                 future.result()
         finally:
             torch.set_num_threads(intra)
@@ -341,7 +256,7 @@ class VirtualViewRenderer(nn.Module):
         first: int,
         pixel0: int | Tensor,
         mode: str,
-        ws: _Workspace,
+        ws: Workspace,
         dummy: int = 0,
         fill: int | None = None,
     ) -> None:
@@ -380,7 +295,7 @@ class VirtualViewRenderer(nn.Module):
             else:
                 self._scatter_compact(buf, row_d2, row_addr, tap_d2[iu], tap_pix[iu], key)
 
-    def _taps(self, pts: Tensor, first: int, ws: _Workspace) -> tuple[Tensor, Tensor, Tensor, Tensor]:
+    def _taps(self, pts: Tensor, first: int, ws: Workspace) -> tuple[Tensor, Tensor, Tensor, Tensor]:
         """What every view needs of ``pts (m, 3)`` (memory of ``ws``): cube coordinates ``(3, m)`` with NaN as 0
         (``(7, m)`` with tilted side views, :func:`~sigma_policy.views.tilted_coordinates`),
         flat point indices ``first ..`` ``(m,)``, and per image-axis quantity the ``T`` candidate pixel indices
@@ -416,7 +331,7 @@ class VirtualViewRenderer(nn.Module):
         col_d2: Tensor,
         col_pix: Tensor,
         key: Tensor,
-        ws: _Workspace,
+        ws: Workspace,
         dummy: int = 0,
     ) -> None:
         """Scatter-min ``key (m,)`` into the ``T x T`` candidate pixels (rows ``row_d2, row_addr (T, m)`` x
@@ -473,16 +388,16 @@ class VirtualViewRenderer(nn.Module):
         S, V, C = self.img_size, self.num_views, 3 + feats.shape[-1]
         dev = points_cube.device
         if dev.type == "cpu":
-            out = _output_pool().get((B, V, C + 4, S, S))
+            out = output_pool().get((B, V, C + 4, S, S))
 
-            def job(b: int, ws: _Workspace) -> None:
+            def job(b: int, ws: Workspace) -> None:
                 win = self._sample_keys_cpu(pts[b], ignore[b], mode, ws)
                 self._write_sample_cpu(out[b], win, self._src_table(points_cube[b], feats[b], ws), ws)
 
             self._run_samples_cpu(B, job)
             return out
 
-        M, ws = B * N, _workspace(dev)
+        M, ws = B * N, workspace(dev)
         win = self._batch_keys(pts, ignore, mode, ws)[1:].view(B * V, S * S)
         out = torch.empty((B, V, C + 4, S, S), device=dev)
         # Winners' xyz and features: one gather for the batch (flat indices; column M is the empty pixel's zeros).
@@ -494,7 +409,7 @@ class VirtualViewRenderer(nn.Module):
         return out
 
     @staticmethod
-    def _src_table(points: Tensor, feats: Tensor, ws: _Workspace) -> Tensor:
+    def _src_table(points: Tensor, feats: Tensor, ws: Workspace) -> Tensor:
         """Channel-major xyz + features ``(C, N + 1)`` of ``N`` points (one sample's, or a flattened batch's; memory
         of ``ws``); column N (the index an empty pixel unpacks to) is zero."""
         N, C = points.shape[0], 3 + feats.shape[-1]
@@ -504,7 +419,7 @@ class VirtualViewRenderer(nn.Module):
         src[:, N] = 0
         return src
 
-    def _write_sample_cpu(self, out: Tensor, win: Tensor, src: Tensor, ws: _Workspace) -> None:
+    def _write_sample_cpu(self, out: Tensor, win: Tensor, src: Tensor, ws: Workspace) -> None:
         """One sample's channels ``out (V, C + 4, H, W)`` from its keys ``win (V, H*W)``: the winners' xyz and
         features gathered from ``src`` (:meth:`_src_table`) straight into the output, image by image, then depth
         and the pixel-location channels."""
@@ -518,7 +433,7 @@ class VirtualViewRenderer(nn.Module):
         out[:, C + 1 :] = self.pixel_loc
 
     @staticmethod
-    def _write_depth(win: Tensor, depth: Tensor, ws: _Workspace) -> None:
+    def _write_depth(win: Tensor, depth: Tensor, ws: Workspace) -> None:
         """Depth channel ``depth (..., H, W)`` (a view into the output) from keys ``win (R, H*W)``: the winner's z
         minus the mean over the filled pixels of its image, -1 where empty, in integer bit arithmetic."""
         R, P = win.shape

@@ -8,11 +8,13 @@ tested by the demo's quick run (tests/pipelines/test_demo.py), which evaluates f
 from __future__ import annotations
 
 import json
+import shutil
 from pathlib import Path
 
 import pytest
 
 import pipelines.evaluate as evaluate
+from pipelines.checkpoints import CheckpointError
 from pipelines.episode_log import LOG_NAME, EpisodeLog
 from pipelines.evaluate import EvalConfig, run_eval
 from pipelines.rollout import EpisodeResult, Job
@@ -90,3 +92,39 @@ def test_a_killed_evaluation_plays_only_the_missing_episodes(checkpoint: Path, t
     kill_at, played[:] = None, []
     cfg.max_keyframes = 5  # another keyframe budget: the logged episode is not this evaluation's
     assert run_eval(cfg)["resumed_episodes"] == 0 and played == [100_000, 100_001, 100_002, 100_003]
+
+
+def test_ensemble_members_are_checked_first_and_their_weights_decide_what_a_log_is_trusted_for(
+    checkpoint: Path, tmp_path: Path, monkeypatch
+):
+    played: list[int] = []
+
+    def play(job: Job) -> EpisodeResult:
+        if job.seed == kill_at:
+            raise KeyboardInterrupt
+        played.append(job.seed)
+        return _episode(job.seed)
+
+    monkeypatch.setattr(evaluate, "init_worker", lambda cfg: None)
+    monkeypatch.setattr(evaluate, "run_job", play)
+    out = tmp_path / "eval"
+    cfg = EvalConfig(checkpoint=checkpoint, tasks=["lift"], episodes=3, workers=1, output_dir=out)
+    cfg.ensemble = [tmp_path / "missing"]
+    with pytest.raises(CheckpointError, match=r"--ensemble: .*missing is not a pretrained_model"):
+        run_eval(cfg)
+    wider = tmp_path / "wider"
+    shutil.copytree(checkpoint, wider)
+    config = json.loads((wider / "config.json").read_text())
+    (wider / "config.json").write_text(json.dumps(config | {"img_size": 64}))
+    cfg.ensemble = [wider]
+    with pytest.raises(ValueError, match=r"member .*wider: img_size is 64, the first policy's is 32"):
+        run_eval(cfg)
+    assert not played  # refused before any episode
+
+    cfg.ensemble, kill_at = [], 100_001
+    with pytest.raises(KeyboardInterrupt):
+        run_eval(cfg)  # the single policy's evaluation, killed after one episode
+    cfg.ensemble, kill_at, played[:] = [checkpoint], None, []
+    summary = run_eval(cfg)  # the ensemble is not that policy: its episode is played again
+    assert summary["resumed_episodes"] == 0 and played == [100_000, 100_001, 100_002]
+    assert summary["config"]["ensemble"] == [str(checkpoint)]

@@ -1,4 +1,4 @@
-"""SE(3) augmentation: ranges, bounds clamping, inverse, and consistency between cloud and action."""
+"""SE(3) augmentation: ranges, bounds clamping, inverse, and consistency between cloud and action; render noise."""
 
 from __future__ import annotations
 
@@ -7,7 +7,7 @@ import math
 import pytest
 import torch
 
-from sigma_policy.augmentation import se3_augment
+from sigma_policy.augmentation import NOISY_CHANNELS, add_render_noise, se3_augment
 from sigma_policy.rotation import normalize_quat, quat_to_euler_xyz, quat_to_matrix
 
 BOUNDS = torch.tensor([-0.4, -0.5, 0.75, 0.4, 0.5, 1.35])
@@ -76,3 +76,13 @@ def test_generator_makes_it_reproducible_and_nan_stays_nan() -> None:
 def test_bad_shapes_raise() -> None:
     with pytest.raises(ValueError, match="pos"):
         se3_augment(torch.zeros(2, 5, 3), torch.zeros(3, 3), torch.zeros(2, 4), BOUNDS)
+
+
+def test_render_noise_moves_the_seven_rendered_channels_within_its_range_and_leaves_the_pixel_ids() -> None:
+    torch.manual_seed(0)
+    views = torch.rand(3, 5, 10, 8, 8) * 1.8 - 0.9
+    noisy = add_render_noise(views, 0.1)
+    assert torch.equal(noisy[:, :, NOISY_CHANNELS:], views[:, :, NOISY_CHANNELS:])
+    change = (noisy[:, :, :NOISY_CHANNELS] - views[:, :, :NOISY_CHANNELS]).abs()
+    assert 0 < change.max() <= 0.1 and noisy.abs().max() <= 1.0
+    assert add_render_noise(views, 0.0) is views

@@ -11,6 +11,7 @@ import torch
 
 from pipelines.diagnostics import KeyframeSet, diagnose_checkpoint, goal_rows, open_dataset
 from sigma_data.suite import scene_bounds
+from sigma_policy.observation import batch_tasks
 from tests.sigma_policy.test_modeling import build, sample_indices, train, training_batch
 from tests.sigma_policy.tiny_dataset import write_tiny_keyframe_dataset
 
@@ -111,7 +112,7 @@ def test_rotation_is_learnable_under_yaw_augmentation(tmp_path, local_channels):
             )
             views = policy._render(points, cloud.colors, policy.scene_bounds)
             out = policy._run_network(
-                views, policy._tasks(batch, len(idx)), batch, policy.scene_bounds.expand(len(idx), 6)
+                views, batch_tasks(batch, len(idx)), batch, policy.scene_bounds.expand(len(idx), 6)
             )
             res = 360 / policy.config.num_rotation_bins
             pred_yaw = out.rot_logits[:, 2].argmax(-1).double() * res - 180

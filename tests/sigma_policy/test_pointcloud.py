@@ -10,6 +10,8 @@ import torch
 from sigma_policy.pointcloud import (
     PANDA_HAND_BOX,
     bounds_mask,
+    cloud_box,
+    crop_to_cube,
     cube_to_world,
     depth_to_camera_points,
     depth_to_world_points,
@@ -189,3 +191,28 @@ def test_panda_hand_box_drops_the_real_hand_and_nothing_else(lift_frame: dict) -
     for part in ("cube_main", "table"):
         frac, n = share(part)
         assert n > 20 and frac == 0.0, (part, frac, n)
+
+
+def test_crop_keeps_the_in_box_points_first_padded_to_the_fullest_sample() -> None:
+    bounds = torch.tensor([0.0, 0.0, 0.0, 1.0, 1.0, 1.0])
+    nan = float("nan")
+    points = torch.tensor(
+        [
+            [[2.0, 0.5, 0.5], [0.5, 0.5, 0.5], [nan, nan, nan], [1.0, 1.0, 1.0]],  # two inside
+            [[0.25, 0.5, 0.5], [5.0, 5.0, 5.0], [5.0, 5.0, 5.0], [5.0, 5.0, 5.0]],  # one inside
+        ]
+    )
+    colors = torch.arange(2 * 4 * 3, dtype=torch.float32).reshape(2, 4, 3)
+    cube, kept, mask = crop_to_cube(points, colors, bounds)
+    assert cube.shape == (2, 2, 3) and mask.tolist() == [[True, True], [True, False]]
+    torch.testing.assert_close(cube[0], world_to_cube(points[0, [1, 3]], bounds))  # in their order
+    torch.testing.assert_close(kept[0], colors[0, [1, 3]])
+    assert torch.equal(cube[1, 1], torch.zeros(3))  # the padding is a finite point the mask drops
+
+
+def test_cloud_box_is_the_extent_of_the_points_inside_the_bounds() -> None:
+    bounds = torch.tensor([0.0, 0.0, 0.0, 1.0, 1.0, 1.0])
+    points = torch.tensor([[[0.2, 0.3, 0.1], [0.6, 0.4, 0.9], [3.0, 3.0, 3.0]]])
+    torch.testing.assert_close(cloud_box(points, bounds), torch.tensor([[0.2, 0.3, 0.1, 0.6, 0.4, 0.9]]))
+    with pytest.raises(ValueError, match="no points inside"):
+        cloud_box(points[:, 2:], bounds)
