@@ -134,22 +134,28 @@ def run_one(cfg: DemosBenchConfig, n: int, train_root: Path, held_root: Path) ->
 
 def numbers(result: dict) -> dict:
     """The row of one run: last checkpoint's per-head errors, success per variation and pooled."""
-    from pipelines.evaluate import wilson_interval
-
     last = result["diagnostics"]["checkpoints"][-1]
     train, held = last["train"]["all"], last["heldout"]["all"]
-    rows = result["eval"]["variations"]
-    s, n = sum(r["successes"] for r in rows), sum(r["episodes"] for r in rows)
-    failures: dict[str, int] = {}
-    for r in rows:
-        for kind, count in r.get("failures", {}).items():
-            failures[kind] = failures.get(kind, 0) + count
     return {
         "train_cm": train["trans_cm_median"],
         "held_cm": held["trans_cm_median"],
         "held_1cm": held["within_1cm"],
         "held_yaw": held["yaw_deg_mean"],
         "held_grip": held["gripper_acc"],
+    } | eval_numbers(result["eval"])
+
+
+def eval_numbers(summary: dict) -> dict:
+    """Of one ``sigma-eval`` summary: success per variation, pooled (with its Wilson interval), failures by kind."""
+    from pipelines.evaluate import wilson_interval
+
+    rows = summary["variations"]
+    s, n = sum(r["successes"] for r in rows), sum(r["episodes"] for r in rows)
+    failures: dict[str, int] = {}
+    for r in rows:
+        for kind, count in r.get("failures", {}).items():
+            failures[kind] = failures.get(kind, 0) + count
+    return {
         "variations": {
             f"{r['task']}:{r['variation']}": (r["successes"], r["episodes"], r["ci95"]) for r in rows
         },

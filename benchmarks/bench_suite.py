@@ -21,6 +21,7 @@ into its own run directory (``runs/seed<S>_decay<D>_lr<LR>``, then ``_batch<B>``
 
     python -m benchmarks.bench_suite                                  # one training seed
     python -m benchmarks.bench_suite --seeds '[0,1]'                  # both seeds
+    python -m benchmarks.bench_suite --seeds '[0,1]' --ensemble true  # and the two as one policy (method.md §14.4)
     python -m benchmarks.bench_suite --preset small --lr 0.01 --schedule_steps 2000 --policy_args '[]'
                                                                       # the small preset's recipe, for comparison
     python -m benchmarks.bench_suite --preset gpu --device cuda --workers 16 \
@@ -42,6 +43,7 @@ import json
 import os
 import re
 import sys
+import time
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING
@@ -103,6 +105,9 @@ class SuiteBenchConfig:
     # Write benchmarks/results/suite.{md,json} (RESULTS.md includes them).
     publish: bool = True
     results_dir: Path | None = None
+    # Also score every seed's last checkpoint together as one policy (`sigma-eval --ensemble`, docs/method.md
+    # §14.4), on the same episodes; needs two seeds or more.
+    ensemble: bool = False
     # The last stage to run: `collect` (the datasets), `train` (and the runs; a machine without robosuite trains
     # on data collected elsewhere, docs/gpu.md) or `evaluate` (everything: closed loop, diagnosis, the table).
     stop_after: str = "evaluate"
@@ -110,6 +115,8 @@ class SuiteBenchConfig:
     def __post_init__(self) -> None:
         if self.stop_after not in STAGES:
             raise ValueError(f"--stop_after must be one of {', '.join(STAGES)}, got {self.stop_after!r}")
+        if self.ensemble and len(set(self.seeds)) < 2:
+            raise ValueError(f"--ensemble needs two training seeds or more, got --seeds {self.seeds}")
         steps, batch_size = PRESET_BUDGETS.get(self.preset, DEFAULT_BUDGET)
         self.steps = self.steps or steps
         self.batch_size = self.batch_size or batch_size
@@ -140,6 +147,12 @@ class SuiteBenchConfig:
         preset = "" if self.preset == "suite" else f"_{self.preset}"
         name = f"seed{seed}_decay{self.decay_steps}_lr{self.peak_lr:g}{batch}{preset}{self._args_tag()}"
         return self.output_dir / "runs" / name
+
+    def ensemble_dir(self) -> Path:
+        """Where the seeds' runs are scored as one ensemble: ``runs/ensemble_seeds0-1_<the runs' name after the
+        seed>``."""
+        schedule = self.run_dir(self.seeds[0]).name.split("_", 1)[1]
+        return self.output_dir / "runs" / f"ensemble_seeds{'-'.join(map(str, self.seeds))}_{schedule}"
 
     def _args_tag(self) -> str:
         """``policy_args`` beyond ``SUITE_ARGS`` as ``_name-value``, and ``SUITE_ARGS`` left out as
@@ -219,6 +232,38 @@ def run_one(cfg: SuiteBenchConfig, seed: int, train_root: Path, held_root: Path)
     return {"seed": seed, "trained_on": trained_on} | done
 
 
+def evaluate_ensemble(cfg: SuiteBenchConfig, train_root: Path) -> dict:
+    """Every seed's last checkpoint scored as one policy, on the episodes each seed was scored on (unless scored
+    already with these weights: ``members.json`` records them)."""
+    from pipelines.evaluate import EvalConfig, run_eval
+    from sigma_data.files import sha256, write_json_atomic
+
+    checkpoints = [cfg.train_run(seed, train_root).checkpoint for seed in cfg.seeds]
+    out = cfg.ensemble_dir() / "eval"
+    members = {str(c): sha256(c / "model.safetensors") for c in checkpoints}
+    record = cfg.ensemble_dir() / "members.json"
+    done = out / "results.json"
+    if done.exists() and record.exists() and json.loads(record.read_text()) == members:
+        return json.loads(done.read_text())
+    t0 = time.perf_counter()
+    summary = run_eval(
+        EvalConfig(
+            checkpoint=checkpoints[0],
+            ensemble=checkpoints[1:],
+            tasks=cfg.tasks,
+            train_dataset=train_root,
+            output_dir=out,
+            device=cfg.device,
+            episodes=cfg.eval_episodes,
+            max_keyframes=cfg.max_keyframes,
+            workers=cfg.workers,
+        )
+    )
+    write_json_atomic(record, members, indent=2)
+    print(f"[suite] ensemble of seeds {cfg.seeds}: evaluated in {time.perf_counter() - t0:.0f} s", flush=True)
+    return summary
+
+
 def stop_early(cfg: SuiteBenchConfig, train_root: Path, held_root: Path) -> int:
     """``--stop_after collect`` or ``train``: the datasets, and with ``train`` every seed's run, then a summary."""
     from benchmarks.training_runs import train_unless_done
@@ -233,10 +278,13 @@ def stop_early(cfg: SuiteBenchConfig, train_root: Path, held_root: Path) -> int:
     return 0
 
 
-def markdown(cfg: SuiteBenchConfig, results: list[dict]) -> str:
-    from benchmarks.bench_demos import cell, numbers
+def markdown(cfg: SuiteBenchConfig, results: list[dict], ensemble: dict | None = None) -> str:
+    """The tables: success per variation (a column per seed, and one for ``ensemble``, the seeds' checkpoints
+    scored as one policy), a row per seed of errors and pooled success, and the held-out error per task."""
+    from benchmarks.bench_demos import cell, eval_numbers, numbers
 
     rows = [numbers(r) for r in results]
+    together = eval_numbers(ensemble) if ensemble else None
     names = list(rows[0]["variations"]) if rows else []
     head = (
         f"Tasks {', '.join(cfg.tasks)}: {cfg.episodes} demonstrations per variation (seeds from 0"
@@ -254,10 +302,11 @@ def markdown(cfg: SuiteBenchConfig, results: list[dict]) -> str:
         "Errors are medians over every keyframe with a goal at the last checkpoint; yaw is the mean absolute error "
         "of the yaw bin. One column (first table) and one row (second) per training seed.\n\n"
     )
-    seeds = " | ".join(f"seed {r['seed']}" for r in results)
-    lines = [f"| variation | {seeds} |", "|---" * (1 + len(results)) + "|"]
+    columns = [f"seed {r['seed']}" for r in results] + (["the seeds as one ensemble"] if together else [])
+    lines = [f"| variation | {' | '.join(columns)} |", "|---" * (1 + len(columns)) + "|"]
     for k in names:
-        lines.append(f"| {k} | " + " | ".join(cell(*n["variations"][k]) for n in rows) + " |")
+        scored = rows + ([together] if together else [])
+        lines.append(f"| {k} | " + " | ".join(cell(*n["variations"][k]) for n in scored) + " |")
     summary = [
         "",
         "| seed | train cm | held-out cm | held-out ≤ 1 cm | held-out yaw ° | gripper | all (95% CI) | failures "
@@ -271,6 +320,13 @@ def markdown(cfg: SuiteBenchConfig, results: list[dict]) -> str:
             f"| {n['held_yaw']:.1f} | {100 * n['held_grip']:.0f}% "
             f"| **{cell(n['successes'], n['episodes'], n['ci95'])}** | {fails} "
             f"| {r['train_seconds'] / 60:.0f} | {r['eval'].get('seconds', float('nan')) / 60:.0f} |"
+        )
+    if together:
+        fails = ", ".join(f"{k} {c}" for k, c in sorted(together["failures"].items(), key=lambda kv: -kv[1]))
+        summary.append(
+            f"| ensemble of {', '.join(str(r['seed']) for r in results)} | - | - | - | - | - "
+            f"| **{cell(together['successes'], together['episodes'], together['ci95'])}** | {fails or '-'} | - "
+            f"| {ensemble.get('seconds', float('nan')) / 60:.0f} |"
         )
     return head + "\n".join(lines + summary + per_task_lines(cfg, results)) + "\n"
 
@@ -319,12 +375,15 @@ def main(argv: list[str] | None = None) -> int:
     if cfg.stop_after != "evaluate":
         return stop_early(cfg, train_root, held_root)
     results = [run_one(cfg, seed, train_root, held_root) for seed in cfg.seeds]
-    table = markdown(cfg, results)
+    ensemble = evaluate_ensemble(cfg, train_root) if cfg.ensemble else None
+    table = markdown(cfg, results, ensemble)
     print(table)
-    if cfg.publish:
-        from benchmarks.bench_demos import numbers
+    from benchmarks.bench_demos import eval_numbers, numbers
 
+    if cfg.publish:
         data = [{k: v for k, v in r.items() if k != "eval"} | {"numbers": numbers(r)} for r in results]
+        if ensemble:
+            data.append({"ensemble_of_seeds": cfg.seeds, "numbers": eval_numbers(ensemble)})
         write_report(
             "suite",
             "The suite on 2 CPU cores: one multi-task policy, every variation",
@@ -332,15 +391,15 @@ def main(argv: list[str] | None = None) -> int:
             data,
             results_dir=Path(cfg.results_dir or RESULTS_DIR),
         )
-    from benchmarks.bench_demos import numbers
-
     pooled = [numbers(r) for r in results]
+    together = eval_numbers(ensemble) if ensemble else None
     print(
         f"bench_suite: {len(results)} run(s); "
         + "; ".join(
             f"seed {r['seed']}: {n['successes']}/{n['episodes']}"
             for r, n in zip(results, pooled, strict=True)
         )
+        + (f"; the seeds as one ensemble: {together['successes']}/{together['episodes']}" if ensemble else "")
         + f" -> {cfg.output_dir}"
     )
     return 0

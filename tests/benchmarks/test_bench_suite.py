@@ -177,3 +177,54 @@ def test_stop_after_train_trains_every_seed_on_the_collected_data_and_scores_not
     assert not trained
     with pytest.raises(ValueError, match="--stop_after must be one of collect, train, evaluate"):
         SuiteBenchConfig(stop_after="score")
+
+
+def test_the_seeds_scored_as_one_ensemble_get_a_column_and_a_row():
+    cfg = SuiteBenchConfig(tasks=["lift", "stack"], seeds=[1, 2], ensemble=True)
+    results = [
+        _result(1, {"lift:lift_cube": 20, "stack:red_on_green": 6}),
+        _result(2, {"lift:lift_cube": 20, "stack:red_on_green": 10}),
+    ]
+    together = _result(0, {"lift:lift_cube": 20, "stack:red_on_green": 12})["eval"]
+    text = markdown(cfg, results, together)
+    assert "| variation | seed 1 | seed 2 | the seeds as one ensemble |" in text
+    assert "| stack:red_on_green | 6/20 (10–90%) | 10/20 (10–90%) | 12/20 (10–90%) |" in text
+    assert "| ensemble of 1, 2 | - | - | - | - | - | **32/40" in text and "dropped 8 | - | 15 |" in text
+    assert "the seeds as one ensemble" not in markdown(cfg, results)
+    assert cfg.ensemble_dir().name == "ensemble_seeds1-2_decay6000_lr0.003"
+    with pytest.raises(ValueError, match="--ensemble needs two training seeds or more"):
+        SuiteBenchConfig(seeds=[0], ensemble=True)
+
+
+def test_the_ensemble_is_scored_with_every_seeds_checkpoint_and_rescored_only_for_other_weights(
+    tmp_path, monkeypatch
+):
+    import benchmarks.bench_suite as bench
+    import pipelines.evaluate as evaluate
+
+    cfg = SuiteBenchConfig(tasks=["lift"], seeds=[0, 1], ensemble=True, output_dir=tmp_path)
+    train_root = tmp_path / "train" / "data" / "keyframe"
+    for seed in cfg.seeds:
+        checkpoint = cfg.train_run(seed, train_root).checkpoint
+        checkpoint.mkdir(parents=True)
+        (checkpoint / "model.safetensors").write_bytes(bytes([seed]))
+    scored = []
+
+    def run_eval(eval_cfg):
+        scored.append(eval_cfg)
+        eval_cfg.output_dir.mkdir(parents=True, exist_ok=True)
+        summary = {"variations": [], "seconds": 60.0}
+        (eval_cfg.output_dir / "results.json").write_text(json.dumps(summary))
+        return summary
+
+    monkeypatch.setattr(evaluate, "run_eval", run_eval)
+    bench.evaluate_ensemble(cfg, train_root)
+    (first,) = scored
+    assert first.checkpoint == cfg.train_run(0, train_root).checkpoint
+    assert first.ensemble == [cfg.train_run(1, train_root).checkpoint] and first.train_dataset == train_root
+    assert first.output_dir == cfg.ensemble_dir() / "eval" and first.max_keyframes == cfg.max_keyframes
+    bench.evaluate_ensemble(cfg, train_root)
+    assert len(scored) == 1  # the same weights: their results are reused
+    (cfg.train_run(1, train_root).checkpoint / "model.safetensors").write_bytes(b"retrained")
+    bench.evaluate_ensemble(cfg, train_root)
+    assert len(scored) == 2
