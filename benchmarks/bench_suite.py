@@ -304,8 +304,8 @@ def markdown(cfg: SuiteBenchConfig, results: list[dict], ensemble: dict | None =
     )
     columns = [f"seed {r['seed']}" for r in results] + (["the seeds as one ensemble"] if together else [])
     lines = [f"| variation | {' | '.join(columns)} |", "|---" * (1 + len(columns)) + "|"]
+    scored = rows + ([together] if together else [])
     for k in names:
-        scored = rows + ([together] if together else [])
         lines.append(f"| {k} | " + " | ".join(cell(*n["variations"][k]) for n in scored) + " |")
     summary = [
         "",

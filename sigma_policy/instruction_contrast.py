@@ -37,7 +37,7 @@ import torch
 from torch import Tensor
 
 from sigma_policy.heatmap import gaussian_heatmaps
-from sigma_policy.network import NetworkOutput, predicted_uv
+from sigma_policy.network import NetworkOutput, heads_at_point
 
 __all__ = [
     "check_contrast_weight",
@@ -127,8 +127,7 @@ def contrast_instructions(
     if not others:
         return out
     trans = contrasted_logits(out.trans, torch.stack(others), torch.stack(valid), weight)
-    uv = predicted_uv(trans, side_tilt_deg)
-    pooled = run(tasks, head_heatmap=gaussian_heatmaps(uv, trans.shape[-1], sigma=heads_sigma_px), head_uv=uv)
+    pooled = run(tasks, **heads_at_point(trans, side_tilt_deg, heads_sigma_px))
     pooled.trans = trans
     return pooled
 

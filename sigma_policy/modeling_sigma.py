@@ -45,7 +45,7 @@ from sigma_policy.contrastive import contrastive_losses, instruction_ids
 from sigma_policy.ensemble import check_members, mean_probability_logits
 from sigma_policy.heatmap import gaussian_heatmaps, heatmap_to_cube_point
 from sigma_policy.instruction_contrast import contrast_instructions, instruction_negatives
-from sigma_policy.network import NetworkOutput, SigmaNetwork, predicted_uv
+from sigma_policy.network import NetworkOutput, SigmaNetwork, heads_at_point
 from sigma_policy.observation import Cloud, batch_tasks, camera_cloud, first_frames, proprio_input, take
 from sigma_policy.pointcloud import cloud_box, crop_to_cube, cube_to_world, world_to_cube
 from sigma_policy.renderer import VirtualViewRenderer
@@ -356,13 +356,9 @@ class SigmaPolicy(PreTrainedPolicy):
             m._run_network(views, tasks, batch, bounds, transforms=transforms) for m in policies[1:]
         ]
         trans = mean_probability_logits([o.trans for o in outs], event_dims=2)  # per view
-        uv = predicted_uv(trans, cfg.side_tilt_deg)
-        heatmap = gaussian_heatmaps(uv, cfg.img_size, sigma=cfg.gt_heatmap_sigma)
+        heads = heads_at_point(trans, cfg.side_tilt_deg, cfg.gt_heatmap_sigma)
         pooled = [
-            p._run_network(
-                views, tasks, batch, bounds, transforms=transforms, head_heatmap=heatmap, head_uv=uv
-            )
-            for p in policies
+            p._run_network(views, tasks, batch, bounds, transforms=transforms, **heads) for p in policies
         ]
         result = pooled[0]
         result.trans = trans

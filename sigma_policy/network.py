@@ -207,6 +207,15 @@ def predicted_uv(logits: Tensor, side_tilt_deg: float = 0.0) -> Tensor:
     return project_points(point[:, None].to(logits.dtype), size, side_tilt_deg)[0][:, 0]
 
 
+def heads_at_point(logits: Tensor, side_tilt_deg: float, sigma_px: float) -> dict[str, Tensor]:
+    """The network's ``head_heatmap`` and ``head_uv`` arguments that run its heads at the point the translation
+    logits ``(B, V, H, W)`` predict (:func:`predicted_uv`): pooled there with a Gaussian of ``sigma_px`` pixels, as
+    training pools them at the target, and the yaw scan centred there. For a second run of the heads after the
+    logits were changed (instruction contrast, ensembles)."""
+    uv = predicted_uv(logits, side_tilt_deg)
+    return {"head_heatmap": gaussian_heatmaps(uv, logits.shape[-1], sigma=sigma_px), "head_uv": uv}
+
+
 def heatmap_pool(heatmap: Tensor, features: Tensor) -> Tensor:
     """Per-view sum of ``features`` (B, V, C, H, W) weighted by ``heatmap`` (B, V, H, W) -> (B, V*C), view-major."""
     b, v = heatmap.shape[:2]
