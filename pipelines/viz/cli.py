@@ -23,12 +23,8 @@ import rerun as rr
 import rerun.blueprint as rrb
 
 from pipelines.viz.blueprints import episode_blueprint, policy_blueprint
-from pipelines.viz.episode import (
-    EpisodeLogOptions,
-    discover_cameras,
-    load_episode_dataset,
-    log_episode,
-)
+from pipelines.viz.episode import EpisodeLogOptions, log_episode
+from pipelines.viz.episode_tracks import discover_cameras, load_episode_dataset
 from sigma_data.contract import dataset_kind
 
 logger = logging.getLogger(__name__)

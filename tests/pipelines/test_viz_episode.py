@@ -9,11 +9,7 @@ import numpy as np
 import pytest
 
 from pipelines.viz.cli import main
-from pipelines.viz.episode import (
-    backproject_depth,
-    load_episode_dataset,
-    subsample_evenly,
-)
+from pipelines.viz.episode_tracks import load_episode_dataset
 from sigma_data.contract import dataset_kind
 from tests.pipelines import viz_fixtures as fx
 
@@ -47,14 +43,6 @@ def _view(dataset: fx.FixtureDataset, episode: int, out: Path, *extra: str) -> f
         ]
     )
     return fx.read_rrd(out)
-
-
-def _on_scene_surface(points: np.ndarray, tol: float = 2e-3) -> np.ndarray:
-    """True where a world point lies on the table top or on the cube's surface (within ``tol`` metres)."""
-    on_table = np.abs(points[:, 2] - fx.TABLE_Z) < tol
-    rel = np.abs(points - fx.CUBE_CENTER)
-    on_cube = (np.abs(rel.max(axis=1) - fx.CUBE_HALF) < tol) & (rel.max(axis=1) < fx.CUBE_HALF + tol)
-    return on_table | on_cube
 
 
 def _translations(contents: fx.RrdContents, entity: str) -> np.ndarray:
@@ -141,29 +129,10 @@ def test_fused_cloud_lies_on_the_scene(dense, tmp_path):
     points = np.concatenate(
         [np.asarray(c) for c in contents.values["/world/point_cloud"]["Points3D:positions"]]
     )
-    on = _on_scene_surface(points)
+    on = fx.on_scene_surface(points)
     assert on.mean() == 1.0, f"{(~on).sum()} of {len(points)} points off the scene, e.g. {points[~on][:3]}"
     rel = np.abs(points - fx.CUBE_CENTER).max(axis=1)
     assert (rel < fx.CUBE_HALF + 2e-3).sum() > 50  # the cube is seen, not only the table
-
-
-def test_backproject_depth_inverts_the_renderer():
-    K = fx.intrinsics()
-    E = fx.look_at(np.array([0.4, -0.3, 1.2]), fx.CUBE_CENTER, np.array([0.0, 0.0, 1.0]))
-    _, depth = fx.render(K, E)
-    xyz, flat = backproject_depth(depth[..., 0], K, E, max_depth_m=3.0)
-    assert len(xyz) == fx.H * fx.W == len(flat)
-    assert _on_scene_surface(xyz, tol=1e-5).all()
-    far = depth.copy()
-    far[0, 0, 0] = fx.MISS_DEPTH_M
-    xyz_far, flat_far = backproject_depth(far[..., 0], K, E, max_depth_m=3.0)
-    assert len(xyz_far) == fx.H * fx.W - 1 and 0 not in flat_far
-
-
-def test_subsample_evenly():
-    assert subsample_evenly(5, 10).tolist() == [0, 1, 2, 3, 4]
-    idx = subsample_evenly(1000, 7)
-    assert len(idx) == 7 and idx[0] == 0 and idx[-1] == 999 and np.all(np.diff(idx) > 0)
 
 
 def test_kind_detection_errors(tmp_path):
@@ -174,8 +143,3 @@ def test_kind_detection_errors(tmp_path):
     (tmp_path / "meta" / "sigma.json").write_text(json.dumps({"kind": "sparse"}))
     with pytest.raises(ValueError, match=r"sigma\.json: field 'kind'"):
         dataset_kind(tmp_path, feats)
-
-
-def test_bad_episode_index_names_the_dataset(dense):
-    with pytest.raises(ValueError, match="episode index 7 out of range"):
-        load_episode_dataset(dense.root, 7)

@@ -273,3 +273,11 @@ def read_rrd(path: Path) -> RrdContents:
         timeline_rows=timeline_rows,
         values=values,
     )
+
+
+def on_scene_surface(points: np.ndarray, tol: float = 2e-3) -> np.ndarray:
+    """True where a world point lies on the table top or on the cube's surface (within ``tol`` metres)."""
+    on_table = np.abs(points[:, 2] - TABLE_Z) < tol
+    rel = np.abs(points - CUBE_CENTER)
+    on_cube = (np.abs(rel.max(axis=1) - CUBE_HALF) < tol) & (rel.max(axis=1) < CUBE_HALF + tol)
+    return on_table | on_cube
