@@ -2,9 +2,10 @@
 the point cloud and the action target, and the render noise on the rendered views (:func:`add_render_noise`).
 
 Per sample: a translation ``t`` uniform in ``[-xyz_range, xyz_range]`` metres per axis (RVT scales its 0.125 by the
-box extent; with its 1 m box that is the same +-0.125 m), clamped so that the target position ``a + t`` stays inside
-``bounds`` (a target already outside on an axis may only move back towards the box there), and a yaw ``theta``
-uniform in ``[-yaw_range_deg, yaw_range_deg]`` about the world z axis through the target (roll = pitch = 0).
+box extent, which the policy does with ``aug_translation_unit="box"``), clamped so that the target position
+``a + t`` stays inside ``bounds`` (a target already outside on an axis may only move back towards the box there),
+and a yaw ``theta`` uniform in ``[-yaw_range_deg, yaw_range_deg]`` about the world z axis through the target
+(roll = pitch = 0).
 With ``R = Rz(theta)`` the rigid transform is ``T(p) = R^T (p - a) + a + t``; points map by ``T``, the target
 position to ``a + t`` and the target orientation to ``R^T R_a`` (quaternion xyzw, w >= 0).
 
@@ -32,12 +33,13 @@ def se3_augment(
     pos: Tensor,
     quat: Tensor,
     bounds: Tensor | Sequence[float],
-    xyz_range: float = 0.125,
+    xyz_range: float | Tensor = 0.125,
     yaw_range_deg: float = 45.0,
     generator: torch.Generator | None = None,
 ) -> tuple[Tensor, Tensor, Tensor, Tensor]:
     """Randomly translate and yaw each sample's world cloud ``(B, N, 3)`` and target ``pos (B, 3)``,
-    ``quat (B, 4)`` (xyzw), inside ``bounds`` ((6,) shared or (B, 6) per sample). Returns ``(points', pos', quat', transforms (B, 4, 4))`` where ``transforms`` maps
+    ``quat (B, 4)`` (xyzw), inside ``bounds`` ((6,) shared or (B, 6) per sample); ``xyz_range`` is metres, one for
+    every axis or per axis ((3,) or (B, 3)). Returns ``(points', pos', quat', transforms (B, 4, 4))`` where ``transforms`` maps
     old world coordinates to new ones. NaN points stay NaN. Random draws come from ``generator`` (on its
     device) when given."""
     if points.ndim != 3 or points.shape[-1] != 3:
@@ -58,6 +60,8 @@ def se3_augment(
     pos = pos.to(dtype)
     lo = torch.minimum(b[..., :3] - pos, torch.zeros_like(pos))
     hi = torch.maximum(b[..., 3:] - pos, torch.zeros_like(pos))
+    if isinstance(xyz_range, Tensor):
+        xyz_range = xyz_range.to(device=dev, dtype=dtype)
     t = torch.minimum(torch.maximum(u[:, :3] * xyz_range, lo), hi)
     theta = u[:, 3] * math.radians(yaw_range_deg)
     c, s = torch.cos(theta), torch.sin(theta)

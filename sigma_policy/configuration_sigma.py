@@ -362,6 +362,12 @@ class SigmaConfig(PreTrainedConfig):
 
     # ---- augmentation and labels (training only)
     aug_translation_range: float | None = None  # None = from preset (paper 0.125, small 0)
+    # What the translation range is counted in: "m" (metres, every axis alike) or "box" (a fraction of the sample's
+    # box extent per axis, RVT's convention: 0.125 is +-12.5 cm on a 1 m box and +-4.5 cm on Lift's 36 cm one).
+    aug_translation_unit: str = "m"
+    # The translation range grows linearly from 0 to its full value over this many training steps (0 = full from
+    # the first step): a short run fits the scenes as they are first, then sees them moved (docs/method.md §9).
+    aug_translation_ramp_steps: int = 0
     aug_yaw_range_deg: float | None = None  # None = from preset (paper 45, small 0)
     image_noise: float = 0.1
     gt_heatmap_sigma: float = 1.5
@@ -409,6 +415,14 @@ class SigmaConfig(PreTrainedConfig):
             )
         if self.depth_unit not in ("m", "mm"):
             raise ValueError(f"policy.depth_unit must be 'm' or 'mm', got {self.depth_unit!r}")
+        if self.aug_translation_unit not in ("m", "box"):
+            raise ValueError(
+                f"policy.aug_translation_unit must be 'm' or 'box', got {self.aug_translation_unit!r}"
+            )
+        if self.aug_translation_ramp_steps < 0:
+            raise ValueError(
+                f"policy.aug_translation_ramp_steps must be >= 0, got {self.aug_translation_ramp_steps}"
+            )
         if not 0.0 < self.bc_lambda <= 1.0:
             raise ValueError(f"policy.bc_lambda must be in (0, 1], got {self.bc_lambda}")
         if not self.first_keyframe_weight > 0.0:

@@ -5,8 +5,9 @@ Per sample and frame (current frame i, and in training its goal, keyframe i+1, f
 
 1. Each camera's metric depth + intrinsics + camera-to-world extrinsics -> world points, coloured by its RGB;
    all cameras are concatenated into one cloud (B, N, 3) (``observation.py``, which reads every batch field).
-2. Training only: SE(3) augmentation (±``aug_translation_range`` m, ±``aug_yaw_range_deg`` yaw about the target
-   position; the goal gets its own draw, pivoting on the goal frame's end-effector position; ``augmentation.py``).
+2. Training only: SE(3) augmentation (±``aug_translation_range``, in metres or box extents, ±``aug_yaw_range_deg``
+   yaw about the target position; the goal gets its own draw, pivoting on the goal frame's end-effector position;
+   ``augmentation.py``).
 3. Crop to the sample's box (``scene_bounds``, or its task's with ``per_task_bounds``), map to the canonical cube
    [-1, 1]^3 (``pointcloud.py``), render 5 orthographic virtual views (B, 5, 10, img_size, img_size;
    ``renderer.py``); training adds the uniform render noise of docs/method.md §4.3 on channels 0-6.
@@ -134,6 +135,10 @@ class SigmaPolicy(PreTrainedPolicy):
         self.register_buffer(
             "scene_bounds", torch.tensor(config.scene_bounds, dtype=torch.float32), persistent=False
         )
+        if config.aug_translation_ramp_steps:
+            # Training steps taken, for the translation ramp; saved with the weights so that a resumed run goes on
+            # where it stopped (only registered with a ramp, so other checkpoints keep their keys).
+            self.register_buffer("aug_steps_taken", torch.zeros((), dtype=torch.long))
         self.last_prediction: SigmaPrediction | None = None
         # Further trained policies this one acts with (sigma_policy/ensemble.py); not part of this one's weights.
         self.__dict__["ensemble_members"] = []
@@ -205,6 +210,8 @@ class SigmaPolicy(PreTrainedPolicy):
         tasks = batch_tasks(batch, action.shape[0])
         bounds = self._bounds(tasks)
 
+        if cfg.aug_translation_ramp_steps and torch.is_grad_enabled():
+            self.aug_steps_taken += 1
         views, pos, quat, transforms = self._augmented_views(batch, 0, action[:, :3], action[:, 3:7], bounds)
         goal_views = None
         if cfg.use_contrastive:
@@ -472,11 +479,22 @@ class SigmaPolicy(PreTrainedPolicy):
             pos,
             quat,
             bounds,
-            xyz_range=self.config.aug_translation_range,
+            xyz_range=self._translation_range(bounds),
             yaw_range_deg=self.config.aug_yaw_range_deg,
         )
         views = add_render_noise(self._render(points, cloud.colors, bounds), self.config.image_noise)
         return views, pos, quat, transforms
+
+    def _translation_range(self, bounds: Tensor) -> float | Tensor:
+        """The augmentation's translation range now: metres, or with ``aug_translation_unit="box"`` per sample and
+        axis (B, 3) or (3,) a share of ``bounds``' extent; scaled by the ramp's progress when it has one."""
+        cfg = self.config
+        scale = cfg.aug_translation_range
+        if cfg.aug_translation_ramp_steps:
+            scale *= min(1.0, self.aug_steps_taken.item() / cfg.aug_translation_ramp_steps)
+        if cfg.aug_translation_unit == "box":
+            return scale * (bounds[..., 3:] - bounds[..., :3])
+        return scale
 
     def _render(self, points: Tensor, colors: Tensor, bounds: Tensor) -> Tensor:
         """Crop to ``bounds`` ((6,) shared or (B, 6) per sample), map to the cube and render (B, V, 10, H, W)."""

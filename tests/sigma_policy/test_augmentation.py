@@ -63,6 +63,21 @@ def test_ranges_and_bounds_clamp() -> None:
     )
 
 
+def test_a_range_per_axis_and_per_sample_bounds_each_axis() -> None:
+    points, pos, quat = _sample(400, 4)
+    per_axis = torch.tensor([0.1, 0.0, 0.02])  # the box unit's share of an extent, say: y held still
+    _, new_pos, _, _ = se3_augment(
+        points, pos, quat, BOUNDS, xyz_range=per_axis, generator=torch.Generator().manual_seed(5)
+    )
+    t = (new_pos - pos).abs().amax(0)
+    assert t[1] == 0 and 0.08 < t[0] <= 0.1 + 1e-6 and 0.015 < t[2] <= 0.02 + 1e-6
+    per_sample = torch.zeros(400, 3)
+    per_sample[:200] = 0.05  # half the batch still, half moved by up to 5 cm on every axis
+    _, new_pos, _, _ = se3_augment(points, pos, quat, BOUNDS, xyz_range=per_sample)
+    moved = (new_pos - pos).abs()
+    assert moved[200:].max() == 0 and 0.04 < moved[:200].max() <= 0.05 + 1e-6
+
+
 def test_generator_makes_it_reproducible_and_nan_stays_nan() -> None:
     points, pos, quat = _sample(4, 4)
     points[0, 0] = float("nan")

@@ -238,6 +238,39 @@ def test_save_and_reload_policy_and_processors(tiny_root, tmp_path):
     torch.testing.assert_close(after, before)
 
 
+def test_translation_range_in_box_units_grows_over_its_ramp_and_resumes_from_the_checkpoint(
+    tiny_root, tmp_path
+):
+    _, policy, pre, _, ds = build(
+        tiny_root, aug_translation_range=0.125, aug_translation_unit="box", aug_translation_ramp_steps=4
+    )
+    extent = torch.tensor(BOUNDS[3:]) - torch.tensor(BOUNDS[:3])
+    bounds = policy.scene_bounds
+    torch.testing.assert_close(policy._translation_range(bounds), 0.0 * extent)
+    batch = pre(training_batch(ds, sample_indices(ds)[:2]))
+    for _ in range(2):
+        policy.forward(dict(batch))
+    with torch.no_grad():  # an evaluation pass is not a training step
+        policy.forward(dict(batch))
+    torch.testing.assert_close(policy._translation_range(bounds), 0.0625 * extent)
+    policy.save_pretrained(tmp_path)
+    resumed = SigmaPolicy.from_pretrained(tmp_path)
+    assert int(resumed.aug_steps_taken) == 2
+    for _ in range(3):
+        resumed.forward(dict(batch))
+    torch.testing.assert_close(resumed._translation_range(bounds), 0.125 * extent)  # full from step 4 on
+    assert "aug_steps_taken" not in dict(build(tiny_root)[1].named_buffers())  # no ramp, no new key
+
+
+@pytest.mark.parametrize(
+    ("field", "value", "message"),
+    [("aug_translation_unit", "cm", "'m' or 'box'"), ("aug_translation_ramp_steps", -1, ">= 0")],
+)
+def test_translation_augmentation_options_are_checked(field, value, message):
+    with pytest.raises(ValueError, match=message):
+        SigmaConfig(device="cpu", **{field: value})
+
+
 def test_checkpoint_saved_without_film_loads_without_it(tiny_root, tmp_path, caplog):
     """A small-preset checkpoint from before ``lang_film`` existed (no field in config.json, no FiLM weights)
     loads without the module instead of with a randomly initialised one (LeRobot loads non-strictly)."""
