@@ -49,7 +49,6 @@ from sigma_data.contract import (
     extrinsics_key,
     goal_frame,
     intrinsics_key,
-    read_sidecar,  # noqa: F401  TODO(contract) drop once tests import it from sigma_data.contract
     rgb_key,
 )
 from sigma_data.episode import CameraViews, Episode
