@@ -39,9 +39,9 @@ def se3_augment(
 ) -> tuple[Tensor, Tensor, Tensor, Tensor]:
     """Randomly translate and yaw each sample's world cloud ``(B, N, 3)`` and target ``pos (B, 3)``,
     ``quat (B, 4)`` (xyzw), inside ``bounds`` ((6,) shared or (B, 6) per sample); ``xyz_range`` is metres, one for
-    every axis or per axis ((3,) or (B, 3)). Returns ``(points', pos', quat', transforms (B, 4, 4))`` where ``transforms`` maps
-    old world coordinates to new ones. NaN points stay NaN. Random draws come from ``generator`` (on its
-    device) when given."""
+    every axis or per axis ((3,) or (B, 3)). Returns ``(points', pos', quat', transforms (B, 4, 4))`` where
+    ``transforms`` maps old world coordinates to new ones. NaN points stay NaN. Random draws come from
+    ``generator`` (on its device) when given."""
     if points.ndim != 3 or points.shape[-1] != 3:
         raise ValueError(f"points must be (B, N, 3), got {tuple(points.shape)}")
     B = points.shape[0]

@@ -212,11 +212,16 @@ class SigmaPolicy(PreTrainedPolicy):
 
         if cfg.aug_translation_ramp_steps and torch.is_grad_enabled():
             self.aug_steps_taken += 1
-        views, pos, quat, transforms = self._augmented_views(batch, 0, action[:, :3], action[:, 3:7], bounds)
+        shift = self._translation_range(bounds)
+        views, pos, quat, transforms = self._augmented_views(
+            batch, 0, action[:, :3], action[:, 3:7], bounds, shift
+        )
         goal_views = None
         if cfg.use_contrastive:
             state = take(batch, OBS_STATE, t=1, item_ndim=1).float()
-            goal_views, *_ = self._augmented_views(batch, 1, state[:, :3], state[:, STATE_QUAT], bounds)
+            goal_views, *_ = self._augmented_views(
+                batch, 1, state[:, :3], state[:, STATE_QUAT], bounds, shift
+            )
 
         target_uv = self.renderer.project(world_to_cube(pos[:, None], bounds))[:, 0]  # (B, V, 2)
         target_hm = gaussian_heatmaps(target_uv, cfg.img_size, sigma=cfg.gt_heatmap_sigma)
@@ -469,7 +474,7 @@ class SigmaPolicy(PreTrainedPolicy):
         return cloud
 
     def _augmented_views(
-        self, batch: dict[str, Any], t: int, pos: Tensor, quat: Tensor, bounds: Tensor
+        self, batch: dict[str, Any], t: int, pos: Tensor, quat: Tensor, bounds: Tensor, shift: float | Tensor
     ) -> tuple[Tensor, Tensor, Tensor, Tensor]:
         """Frame ``t``'s cloud under its own SE(3) draw about ``pos`` (B, 3) / ``quat`` (B, 4), rendered with the
         training render noise: ``(views, pos', quat', transforms)`` (sigma_policy/augmentation.py)."""
@@ -479,7 +484,7 @@ class SigmaPolicy(PreTrainedPolicy):
             pos,
             quat,
             bounds,
-            xyz_range=self._translation_range(bounds),
+            xyz_range=shift,
             yaw_range_deg=self.config.aug_yaw_range_deg,
         )
         views = add_render_noise(self._render(points, cloud.colors, bounds), self.config.image_noise)
@@ -490,8 +495,8 @@ class SigmaPolicy(PreTrainedPolicy):
         axis (B, 3) or (3,) a share of ``bounds``' extent; scaled by the ramp's progress when it has one."""
         cfg = self.config
         scale = cfg.aug_translation_range
-        if cfg.aug_translation_ramp_steps:
-            scale *= min(1.0, self.aug_steps_taken.item() / cfg.aug_translation_ramp_steps)
+        if cfg.aug_translation_ramp_steps:  # a tensor: no device sync in the training step
+            scale = scale * (self.aug_steps_taken / cfg.aug_translation_ramp_steps).clamp(max=1.0)
         if cfg.aug_translation_unit == "box":
             return scale * (bounds[..., 3:] - bounds[..., :3])
         return scale
