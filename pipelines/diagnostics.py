@@ -77,6 +77,9 @@ class DiagnoseConfig:
     # Pairs per task in the gripper swap (the first frames where the gripper closes or opens in place).
     gripper_pairs_per_task: int = 20
     device: str = "cpu"
+    # For checkpoints trained with a weight average (the policy's `ema_decay`): diagnose the average (true) or the
+    # trained weights (false); None: what the checkpoint acts with (the average).
+    act_with_ema: bool | None = None
     # Where diagnostics.json, curves.png and curves.rrd go (default: <run>/diagnostics or <checkpoint>/..).
     output_dir: Path | None = None
 
@@ -267,6 +270,10 @@ def run_diagnose(cfg: DiagnoseConfig) -> dict[str, Any]:
     report: dict[str, Any] = {"checkpoints": [], "sets": {s.name: len(s.indices) for s in sets}}
     for step, ckpt in tqdm(ckpts, desc="sigma-diagnose", unit="checkpoint"):
         policy, pre, _ = load_policy(ckpt, cfg.device)
+        if cfg.act_with_ema is not None:
+            if policy.weight_average is None:
+                raise ValueError(f"--act_with_ema: {ckpt} was trained without a weight average (ema_decay 0)")
+            policy.config.act_with_ema = cfg.act_with_ema
         report["checkpoints"].append(
             {"step": step, "path": str(ckpt), **diagnose_checkpoint(policy, pre, sets, cfg.batch_size)}
         )

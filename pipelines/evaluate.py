@@ -80,6 +80,9 @@ class EvalConfig:
     # pass averages their heatmaps and head probabilities (a deep ensemble, sigma_policy/ensemble.py). Their views
     # and boxes must be --checkpoint's; the pre- and post-processor are --checkpoint's.
     ensemble: list[Path] = field(default_factory=list)
+    # For a checkpoint trained with a weight average (the policy's `ema_decay`, docs/method.md §10.1): act with the
+    # average (true) or with the trained weights (false); None: the checkpoint's own choice (the average).
+    act_with_ema: bool | None = None
 
 
 def wilson_interval(successes: int, n: int, z: float = 1.96) -> tuple[float, float]:
@@ -226,6 +229,12 @@ def run_eval(cfg: EvalConfig) -> dict:
         check_yaw_angles(cfg.tta_yaw_deg, bins)  # ValueError naming the angles
     if cfg.instruction_contrast:
         _check_instruction_contrast(cfg)
+    if cfg.act_with_ema is not None:
+        config_file = Path(cfg.checkpoint) / "config.json"
+        if not json.loads(config_file.read_text()).get("ema_decay"):
+            raise ValueError(
+                f"--act_with_ema: {config_file} was trained without a weight average (ema_decay 0)"
+            )
     jobs = plan_jobs(cfg)
     cfg.output_dir = Path(cfg.output_dir)
     cfg.output_dir.mkdir(parents=True, exist_ok=True)
@@ -268,6 +277,8 @@ def _resume(cfg: EvalConfig, jobs: list[Job]) -> tuple[EpisodeLog, list[EpisodeR
         "tta_yaw_deg": cfg.tta_yaw_deg,
         "instruction_contrast": cfg.instruction_contrast,
     }
+    if cfg.act_with_ema is not None:  # the header of every other log stays as it was
+        header["act_with_ema"] = cfg.act_with_ema
     if cfg.ensemble:  # the header of a single policy's log stays as it was
         header["ensemble_sha256"] = [sha256(Path(m) / "model.safetensors") for m in cfg.ensemble]
     log = EpisodeLog(cfg.output_dir, header)

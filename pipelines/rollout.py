@@ -72,6 +72,8 @@ class RolloutWorker:
             self.policy.add_ensemble_members(members, [str(m) for m in cfg.ensemble])
         if cfg.tta_yaw_deg is not None:  # checked in run_eval
             self.policy.config.tta_yaw_deg = [float(a) for a in cfg.tta_yaw_deg]
+        if cfg.act_with_ema is not None:  # checked in run_eval
+            self.policy.config.act_with_ema = cfg.act_with_ema
         if cfg.instruction_contrast is not None:  # checked in run_eval
             self.policy.config.instruction_contrast = cfg.instruction_contrast
             if not self.policy.config.instruction_tasks and cfg.train_dataset is not None:

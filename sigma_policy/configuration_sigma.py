@@ -138,6 +138,7 @@ from sigma_policy.instruction_contrast import check_contrast_weight
 from sigma_policy.lamb import LambConfig
 from sigma_policy.network import NetworkConfig
 from sigma_policy.test_time import check_yaw_angles
+from sigma_policy.weight_average import check_ema_decay
 
 PRESETS: dict[str, dict[str, Any]] = {
     "paper": {
@@ -382,6 +383,11 @@ class SigmaConfig(PreTrainedConfig):
     optimizer_exempt_small: bool | None = None
     scheduler_warmup_steps: int | None = None
     scheduler_decay_steps: int | None = None
+    # A moving average of the weights, updated after every optimiser step: w_avg <- d w_avg + (1 - d) w, with
+    # d = ema_decay (0 = off; 0.998 averages about the last 500 steps). Outside training the policy acts with the
+    # average unless act_with_ema is false (docs/method.md §10.1, sigma_policy/weight_average.py).
+    ema_decay: float = 0.0
+    act_with_ema: bool = True
 
     # ---- precision
     use_bf16_autocast: bool = True  # bf16 autocast of the network on CUDA devices that support it
@@ -440,6 +446,7 @@ class SigmaConfig(PreTrainedConfig):
             raise ValueError(
                 f"policy.instruction_negative_sigma_px must be > 0, got {self.instruction_negative_sigma_px}"
             )
+        self.ema_decay = check_ema_decay(self.ema_decay)
         if not self.tta_radius_m > 0.0:
             raise ValueError(f"policy.tta_radius_m must be > 0, got {self.tta_radius_m}")
         self.network_config()  # validates the architecture numbers early

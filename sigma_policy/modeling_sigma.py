@@ -59,6 +59,7 @@ from sigma_policy.test_time import (
     yaw_about_box_centre,
 )
 from sigma_policy.text_encoder import make_text_encoder
+from sigma_policy.weight_average import WeightAverage
 
 
 def _cpu_has_bf16() -> bool:
@@ -123,12 +124,7 @@ class SigmaPolicy(PreTrainedPolicy):
         # Frozen and cached per instruction; kept outside the module tree so it is neither saved nor trained.
         self.__dict__["text_encoder"] = make_text_encoder(config.text_encoder, config.text_encoder_path)
         self._lang_cache: dict[str, tuple[Tensor, Tensor]] = {}
-        self.network = SigmaNetwork(
-            config.network_config(),
-            self.text_encoder.token_dim,
-            self.text_encoder.sentence_dim,
-            self.text_encoder.max_length,
-        )
+        self._build_network()
         self.renderer = VirtualViewRenderer(
             img_size=config.img_size, radius_px=config.render_radius_px, side_tilt_deg=config.side_tilt_deg
         )
@@ -157,13 +153,20 @@ class SigmaPolicy(PreTrainedPolicy):
         (sigma_policy/compat.py, "Added modules")."""
         match_saved_modules(model.config, model_file)
         if model.network.cfg != model.config.network_config():
-            model.network = SigmaNetwork(
-                model.config.network_config(),
-                model.text_encoder.token_dim,
-                model.text_encoder.sentence_dim,
-                model.text_encoder.max_length,
-            )
+            model._build_network()
         return super()._load_as_safetensor(model, model_file, map_location, strict)
+
+    def _build_network(self) -> None:
+        """The network for ``self.config``, and with ``ema_decay`` its moving average (``weight_average``)."""
+        self.network = SigmaNetwork(
+            self.config.network_config(),
+            self.text_encoder.token_dim,
+            self.text_encoder.sentence_dim,
+            self.text_encoder.max_length,
+        )
+        self.weight_average = (
+            WeightAverage(self.network, self.config.ema_decay) if self.config.ema_decay else None
+        )
 
     # ------------------------------------------------------------------ LeRobot API
     def get_optim_params(self):
@@ -171,15 +174,29 @@ class SigmaPolicy(PreTrainedPolicy):
         kernels with the trust ratio, and without it (no weight decay either) the tensors a trust ratio keeps near
         their small initial norm: biases, norm gains/offsets, the logit scale and the zero-initialised query
         tokens (``sigma_policy/lamb.py``)."""
+        # Not the weight average, whose copy of the network has no gradients.
+        trained = [(name, p) for name, p in self.named_parameters() if p.requires_grad]
         if not self.config.optimizer_exempt_small:
-            return self.parameters()
+            return [p for _, p in trained]
         exempt, rest = [], []
-        for name, p in self.named_parameters():
+        for name, p in trained:
             (exempt if p.ndim <= 1 or name.endswith("query_tokens") else rest).append(p)
         return [{"params": rest}, {"params": exempt, "trust_ratio": False, "weight_decay": 0.0}]
 
     def reset(self) -> None:
         self.last_prediction = None
+
+    def update(self) -> None:
+        """After every optimiser step (LeRobot's training loop calls it): move the weight average, if any."""
+        if self.weight_average is not None:
+            self.weight_average.update(self.network)
+
+    def _acting_network(self) -> SigmaNetwork:
+        """The network a pass runs: the weight average outside training (unless ``act_with_ema`` is off),
+        else the trained one."""
+        if self.weight_average is not None and self.config.act_with_ema and not self.training:
+            return self.weight_average.network
+        return self.network
 
     def add_ensemble_members(self, members: list[SigmaPolicy], names: list[str]) -> None:
         """Act from now on with ``members`` (policies trained on the same data, in eval mode on this policy's
@@ -544,13 +561,14 @@ class SigmaPolicy(PreTrainedPolicy):
             autocast = torch.autocast("cuda", dtype=torch.bfloat16)
         elif self.config.use_cpu_bf16_autocast and device.type == "cpu" and _cpu_has_bf16():
             autocast = torch.autocast("cpu", dtype=torch.bfloat16)
+        network = self._acting_network()
         with autocast:
-            return self.network(
+            return network(
                 views,
                 tokens,
                 lang_sentence=sentence if goal_views is not None else None,
                 goal_images=goal_views,
                 proprio=proprio,
-                head_heatmap=head_heatmap if self.network.local_encoder is not None else None,
+                head_heatmap=head_heatmap if network.local_encoder is not None else None,
                 head_uv=head_uv,
             )

@@ -120,3 +120,12 @@ def test_instruction_contrast_without_the_instructions_tasks_is_one_clear_error_
     assert main([f"--checkpoint={checkpoint}", "--instruction_contrast=1.0", f"--output_dir={out}"]) == 1
     assert "instruction_contrast must be in [0, 1)" in capsys.readouterr().err
     assert not out.exists()
+
+
+def test_act_with_ema_on_a_checkpoint_without_a_weight_average_is_one_clear_error_before_any_episode(
+    checkpoint, tmp_path, capsys
+):
+    out = tmp_path / "eval"
+    assert main([f"--checkpoint={checkpoint}", "--act_with_ema=false", f"--output_dir={out}"]) == 1
+    assert "was trained without a weight average (ema_decay 0)" in capsys.readouterr().err
+    assert not out.exists()

@@ -178,3 +178,12 @@ def test_errors_per_task_on_a_dataset_that_names_its_tasks(tmp_path):
         {"checkpoints": [{"step": 5, "train": report}], "sets": {"train": 6}, "output_dir": "x"}
     )
     assert f"first keyframe: left {left['trans_cm_median']:.1f} cm {left['rot_deg_median']:.0f} deg" in line
+
+
+def test_act_with_ema_on_a_checkpoint_without_a_weight_average_is_named(tmp_path):
+    root = write_tiny_keyframe_dataset(tmp_path / "tiny", episodes=1, size=32)
+    ckpt = tmp_path / "ckpt"
+    save_tiny_checkpoint(root, ckpt, [0], 0)
+    cfg = DiagnoseConfig(checkpoint=ckpt, root=root, heldout_root=root, act_with_ema=False)
+    with pytest.raises(ValueError, match=f"{ckpt} was trained without a weight average"):
+        run_diagnose(cfg)

@@ -262,6 +262,45 @@ def test_translation_range_in_box_units_grows_over_its_ramp_and_resumes_from_the
     assert "aug_steps_taken" not in dict(build(tiny_root)[1].named_buffers())  # no ramp, no new key
 
 
+def test_weight_average_follows_the_trained_weights_acts_outside_training_and_resumes(tiny_root, tmp_path):
+    _, policy, pre, _, ds = build(tiny_root, ema_decay=0.5)
+    average = policy.weight_average
+    trained_ids = {id(p) for group in policy.get_optim_params() for p in group["params"]}
+    assert trained_ids == {id(p) for p in policy.network.parameters()}  # the average is never trained
+    optimiser = torch.optim.SGD(policy.network.parameters(), lr=0.1)
+    batch = pre(training_batch(ds, sample_indices(ds)[:2]))
+    snapshots = []
+    for _ in range(2):
+        optimiser.zero_grad()
+        policy.forward(dict(batch))[0].backward()
+        optimiser.step()
+        policy.update()  # what lerobot-train calls after every optimiser step
+        snapshots.append({k: v.detach().clone() for k, v in policy.network.state_dict().items()})
+    assert average.steps == 2
+    for key, avg in average.network.state_dict().items():  # the first step copies, the second moves half-way
+        torch.testing.assert_close(
+            avg, (snapshots[0][key] + snapshots[1][key]) / 2 if avg.is_floating_point() else snapshots[1][key]
+        )
+    assert policy._acting_network() is policy.network  # training runs the trained weights
+    policy.eval()
+    assert policy._acting_network() is average.network
+    obs = pre(dict(single_observation(tiny_root, 4)))
+    with_average = policy.select_action(dict(obs))
+    policy.config.act_with_ema = False
+    assert policy._acting_network() is policy.network
+    assert not torch.equal(policy.select_action(dict(obs)), with_average)
+    policy.config.act_with_ema = True
+    policy.save_pretrained(tmp_path)
+    resumed = SigmaPolicy.from_pretrained(tmp_path).eval()
+    assert resumed.weight_average.steps == 2
+    torch.testing.assert_close(resumed.select_action(dict(obs)), with_average)
+    assert not any(
+        k.startswith("weight_average") for k in build(tiny_root)[1].state_dict()
+    )  # off: no new keys
+    with pytest.raises(ValueError, match=r"ema_decay must be in \[0, 1\)"):
+        SigmaConfig(device="cpu", ema_decay=1.0)
+
+
 @pytest.mark.parametrize(
     ("field", "value", "message"),
     [("aug_translation_unit", "cm", "'m' or 'box'"), ("aug_translation_ramp_steps", -1, ">= 0")],
