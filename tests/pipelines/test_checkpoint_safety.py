@@ -100,12 +100,19 @@ def test_nan_weights_are_named(checkpoint, tmp_path):
         check_checkpoint(ckpt)
 
 
-def test_test_time_yaws_off_the_rotation_bins_are_one_clear_error_before_any_episode(
-    checkpoint, tmp_path, capsys
+@pytest.mark.parametrize(
+    ("option", "message"),
+    [
+        ("--tta_yaw_deg=[15,7]", "multiples of the 5° rotation bins, got [7.0]"),
+        ("--act_with_ema=false", "was trained without a weight average (ema_decay 0)"),
+    ],
+)
+def test_a_test_time_option_the_checkpoint_cannot_take_is_one_clear_error_before_any_episode(
+    checkpoint, tmp_path, capsys, option, message
 ):
     out = tmp_path / "eval"
-    assert main([f"--checkpoint={checkpoint}", "--tta_yaw_deg=[15,7]", f"--output_dir={out}"]) == 1
-    assert "multiples of the 5° rotation bins, got [7.0]" in capsys.readouterr().err
+    assert main([f"--checkpoint={checkpoint}", option, f"--output_dir={out}"]) == 1
+    assert message in capsys.readouterr().err
     assert not out.exists()
 
 
@@ -119,13 +126,4 @@ def test_instruction_contrast_without_the_instructions_tasks_is_one_clear_error_
     assert "has no instruction_tasks" in capsys.readouterr().err
     assert main([f"--checkpoint={checkpoint}", "--instruction_contrast=1.0", f"--output_dir={out}"]) == 1
     assert "instruction_contrast must be in [0, 1)" in capsys.readouterr().err
-    assert not out.exists()
-
-
-def test_act_with_ema_on_a_checkpoint_without_a_weight_average_is_one_clear_error_before_any_episode(
-    checkpoint, tmp_path, capsys
-):
-    out = tmp_path / "eval"
-    assert main([f"--checkpoint={checkpoint}", "--act_with_ema=false", f"--output_dir={out}"]) == 1
-    assert "was trained without a weight average (ema_decay 0)" in capsys.readouterr().err
     assert not out.exists()
