@@ -67,6 +67,13 @@ def check_checkpoint(checkpoint: Path | str) -> None:
         raise CheckpointError(f"{model_path}: cannot read the weights ({type(e).__name__}: {e})") from e
 
 
+def check_act_with_ema(checkpoint: Path | str) -> None:
+    """ValueError naming ``checkpoint`` unless it was trained with a weight average (the policy's ``ema_decay``,
+    docs/method.md §10.1): only then has ``--act_with_ema`` two sets of weights to choose between."""
+    if not json.loads((Path(checkpoint) / "config.json").read_text()).get("ema_decay"):
+        raise ValueError(f"--act_with_ema: {checkpoint} was trained without a weight average (ema_decay 0)")
+
+
 def load_policy(checkpoint: Path | str, device: str = "cpu") -> tuple[Any, Any, Any]:
     """A saved sigma checkpoint on ``device`` in eval mode, with its saved pre- and post-processor
     (after :func:`check_checkpoint`)."""

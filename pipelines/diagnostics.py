@@ -251,7 +251,7 @@ def run_diagnose(cfg: DiagnoseConfig) -> dict[str, Any]:
     """Diagnose one checkpoint or every checkpoint of a run; write the report; return it."""
     from tqdm import tqdm
 
-    from pipelines.checkpoints import load_policy
+    from pipelines.checkpoints import check_act_with_ema, load_policy
 
     if (cfg.run is None) == (cfg.checkpoint is None):
         raise ValueError("give exactly one of --run (a lerobot-train output dir) or --checkpoint")
@@ -269,10 +269,10 @@ def run_diagnose(cfg: DiagnoseConfig) -> dict[str, Any]:
         kf.gripper = gripper_pairs(kf.dataset, rows, tasks, cfg.gripper_pairs_per_task)
     report: dict[str, Any] = {"checkpoints": [], "sets": {s.name: len(s.indices) for s in sets}}
     for step, ckpt in tqdm(ckpts, desc="sigma-diagnose", unit="checkpoint"):
+        if cfg.act_with_ema is not None:
+            check_act_with_ema(ckpt)
         policy, pre, _ = load_policy(ckpt, cfg.device)
         if cfg.act_with_ema is not None:
-            if policy.weight_average is None:
-                raise ValueError(f"--act_with_ema: {ckpt} was trained without a weight average (ema_decay 0)")
             policy.config.act_with_ema = cfg.act_with_ema
         report["checkpoints"].append(
             {"step": step, "path": str(ckpt), **diagnose_checkpoint(policy, pre, sets, cfg.batch_size)}

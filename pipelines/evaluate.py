@@ -38,7 +38,7 @@ from pathlib import Path
 import draccus
 from tqdm import tqdm
 
-from pipelines.checkpoints import CheckpointError, check_checkpoint
+from pipelines.checkpoints import CheckpointError, check_act_with_ema, check_checkpoint
 from pipelines.episode_log import EpisodeLog
 from pipelines.failures import failure_kind
 from pipelines.rollout import EpisodeResult, Job, init_worker, run_job
@@ -230,11 +230,7 @@ def run_eval(cfg: EvalConfig) -> dict:
     if cfg.instruction_contrast:
         _check_instruction_contrast(cfg)
     if cfg.act_with_ema is not None:
-        config_file = Path(cfg.checkpoint) / "config.json"
-        if not json.loads(config_file.read_text()).get("ema_decay"):
-            raise ValueError(
-                f"--act_with_ema: {config_file} was trained without a weight average (ema_decay 0)"
-            )
+        check_act_with_ema(cfg.checkpoint)
     jobs = plan_jobs(cfg)
     cfg.output_dir = Path(cfg.output_dir)
     cfg.output_dir.mkdir(parents=True, exist_ok=True)

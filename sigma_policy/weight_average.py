@@ -32,10 +32,9 @@ class WeightAverage(nn.Module):
 
     def __init__(self, network: nn.Module, decay: float):
         super().__init__()
-        self.decay = check_ema_decay(decay)
-        # Buffers (the upsampling matrix, the renderer grids) are constants of the architecture: copied, not averaged.
+        # The network's buffers (its upsampling matrices) are constants of the architecture: copied, not averaged.
         self.average = AveragedModel(
-            network, multi_avg_fn=get_ema_multi_avg_fn(self.decay), use_buffers=False
+            network, multi_avg_fn=get_ema_multi_avg_fn(check_ema_decay(decay)), use_buffers=False
         )
         self.average.requires_grad_(False)
 
