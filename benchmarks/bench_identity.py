@@ -122,7 +122,7 @@ def capture(network: torch.nn.Module) -> tuple[dict[str, torch.Tensor], Callable
 def probe_set(policy, pre, kf, cfg: IdentityConfig) -> dict:
     """Features of every object of every multi-instruction scene of ``cfg.task`` in ``kf``, and the probe's
     accuracy per stage."""
-    net = policy.network
+    net = policy.acting_network()  # the weight average of an --policy.ema_decay run, as the policy acts
     ncfg = net.cfg
     t, p, v, size = ncfg.tokens_per_side, ncfg.patch_size, ncfg.num_views, ncfg.img_size
     n_img = v * t * t

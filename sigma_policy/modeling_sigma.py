@@ -191,7 +191,7 @@ class SigmaPolicy(PreTrainedPolicy):
         if self.weight_average is not None:
             self.weight_average.update(self.network)
 
-    def _acting_network(self) -> SigmaNetwork:
+    def acting_network(self) -> SigmaNetwork:
         """The network a pass runs: the weight average outside training (unless ``act_with_ema`` is off),
         else the trained one."""
         if self.weight_average is not None and self.config.act_with_ema and not self.training:
@@ -561,7 +561,7 @@ class SigmaPolicy(PreTrainedPolicy):
             autocast = torch.autocast("cuda", dtype=torch.bfloat16)
         elif self.config.use_cpu_bf16_autocast and device.type == "cpu" and _cpu_has_bf16():
             autocast = torch.autocast("cpu", dtype=torch.bfloat16)
-        network = self._acting_network()
+        network = self.acting_network()
         with autocast:
             return network(
                 views,

@@ -278,16 +278,14 @@ def test_weight_average_follows_the_trained_weights_acts_outside_training_and_re
         snapshots.append({k: v.detach().clone() for k, v in policy.network.state_dict().items()})
     assert average.steps == 2
     for key, avg in average.network.state_dict().items():  # the first step copies, the second moves half-way
-        torch.testing.assert_close(
-            avg, (snapshots[0][key] + snapshots[1][key]) / 2 if avg.is_floating_point() else snapshots[1][key]
-        )
-    assert policy._acting_network() is policy.network  # training runs the trained weights
+        torch.testing.assert_close(avg, (snapshots[0][key] + snapshots[1][key]) / 2)
+    assert policy.acting_network() is policy.network  # training runs the trained weights
     policy.eval()
-    assert policy._acting_network() is average.network
+    assert policy.acting_network() is average.network
     obs = pre(dict(single_observation(tiny_root, 4)))
     with_average = policy.select_action(dict(obs))
     policy.config.act_with_ema = False
-    assert policy._acting_network() is policy.network
+    assert policy.acting_network() is policy.network
     assert not torch.equal(policy.select_action(dict(obs)), with_average)
     policy.config.act_with_ema = True
     policy.save_pretrained(tmp_path)
