@@ -253,6 +253,9 @@ class SigmaConfig(PreTrainedConfig):
     img_size: int | None = None
     patch_size: int | None = None
     im_channels: int | None = None
+    # Width of a patch token before its Linear to attn_dim (network.NetworkConfig.patch_channels); 0 = im_channels,
+    # as in RVT and every preset.
+    patch_channels: int = 0
     final_dim: int | None = None
     attn_dim: int | None = None
     attn_heads: int | None = None

@@ -4,8 +4,8 @@ Shapes (B = batch, V = virtual views, C_in = rendered channels (10), H = W = ``i
 T = ``img_size // patch_size`` patches per side, D = ``attn_dim``, L = language tokens):
 
 1. ``input_preprocess`` 1x1 conv C_in -> ``im_channels`` on every view -> ``d0`` (BV, c, H, W) (kept as a skip).
-2. ``patchify`` conv k = stride = ``patch_size`` -> (BV, c, T, T) -> V*T*T tokens + learnable positional encoding
-   -> Linear c -> D.
+2. ``patchify`` conv k = stride = ``patch_size`` -> (BV, p, T, T) -> V*T*T tokens + learnable positional encoding
+   -> Linear p -> D; p = ``patch_channels``, by default ``im_channels`` (RVT's).
 3. Intra-view encoder (``num_view_layers``): self-attention inside each view (sequence T*T).
 4. MVQ-Former (``num_query_layers``): ``num_queries`` learnable query tokens (zero-init, c -> D) with either full
    self-attention over [queries, all image tokens] (released code) or cross-attention queries -> image tokens
@@ -58,6 +58,10 @@ class NetworkConfig:
     img_size: int = 220
     patch_size: int = 11
     im_channels: int = 64
+    # Width of a patch token before its Linear to ``attn_dim`` (not in the paper); 0 = ``im_channels``, RVT's. The
+    # patch convolution maps patch_size² x im_channels numbers to it: at ``small``'s 8-pixel patches of 16 channels
+    # that is 1024 -> 16, where ViT's embedding keeps a patch's width (docs/learning.md "A wider patch token").
+    patch_channels: int = 0
     attn_dim: int = 512
     attn_heads: int = 8
     attn_dim_head: int = 64
@@ -131,8 +135,16 @@ class NetworkConfig:
             raise ValueError(
                 f"yaw_scan_px needs an even num_rotation_bins (half a turn), got {self.num_rotation_bins}"
             )
-        if self.im_channels % 4 or self.attn_dim % 4:
-            raise ValueError("im_channels and attn_dim must be multiples of 4 (GroupNorm(4, .))")
+        if self.im_channels % 4 or self.attn_dim % 4 or self.patch_channels % 4 or self.patch_channels < 0:
+            raise ValueError(
+                "im_channels, patch_channels and attn_dim must be multiples of 4 (GroupNorm(4, .)); "
+                f"got {self.im_channels}, {self.patch_channels}, {self.attn_dim}"
+            )
+
+    @property
+    def patch_width(self) -> int:
+        """Channels of a patch token before the Linear to ``attn_dim``: ``patch_channels``, else ``im_channels``."""
+        return self.patch_channels or self.im_channels
 
     @property
     def tokens_per_side(self) -> int:
@@ -230,7 +242,7 @@ class ContrastiveHeads(nn.Module):
         super().__init__()
         d, n_tok = cfg.attn_dim, cfg.num_views * cfg.tokens_per_side**2
         act = cfg.projection_activation
-        self.goal_pos_encoding = nn.Parameter(torch.randn(1, n_tok, cfg.im_channels))
+        self.goal_pos_encoding = nn.Parameter(torch.randn(1, n_tok, cfg.patch_width))
         self.state_proj = DenseBlock(d, d, act=act)  # phi(s_t): query after the MVQ-Former
         self.fused_proj = DenseBlock(d, d, act=act)  # delta(s_t, l): query after fusion
         self.lang_proj = DenseBlock(lang_sentence_dim, d, act=act)  # psi(l)
@@ -265,9 +277,10 @@ class SigmaNetwork(nn.Module):
         n_tok = cfg.num_views * t * t
 
         self.input_preprocess = ConvBlock(cfg.in_channels, c, kernel=1)
-        self.patchify = ConvBlock(c, c, kernel=cfg.patch_size, stride=cfg.patch_size, norm=True)
-        self.pos_encoding = nn.Parameter(torch.randn(1, n_tok, c))
-        self.fc_bef_attn = DenseBlock(c, d, act=False)
+        p = cfg.patch_width
+        self.patchify = ConvBlock(c, p, kernel=cfg.patch_size, stride=cfg.patch_size, norm=True)
+        self.pos_encoding = nn.Parameter(torch.randn(1, n_tok, p))
+        self.fc_bef_attn = DenseBlock(p, d, act=False)
         self.view_layers = _stack(cfg, cfg.num_view_layers)
 
         self.query_tokens = nn.Parameter(torch.zeros(1, cfg.num_queries, c))

@@ -291,6 +291,28 @@ def test_proprio_in_heads_widens_the_head_input():
     assert proprio.grad.abs().sum() > 0
 
 
+def test_patch_channels_widen_the_patch_token_alone_and_every_new_weight_learns():
+    cfg = dataclasses.replace(SMALL, patch_channels=24)
+    net = SigmaNetwork(cfg, lang_token_dim=12, lang_sentence_dim=12)
+    assert net.patchify[0].out_channels == 24 and net.fc_bef_attn.linear.in_features == 24
+    assert net.pos_encoding.shape[-1] == net.contrastive.goal_pos_encoding.shape[-1] == 24
+    # The decoder, the skip and the heads keep im_channels.
+    assert net.up_conv0[0].in_channels == 8 and net.feat_fc[0].in_features == 5 * (8 + 8)
+    img, tok, sent, goal = inputs(cfg)
+    out = net(img, tok, sent, goal)
+    (
+        out.trans.logsumexp((-2, -1)).sum() + out.rot_logits.sum() + (out.goal_feat * out.state_feat).sum()
+    ).backward()
+    for param in (net.patchify[0].weight, net.pos_encoding, net.contrastive.goal_pos_encoding):
+        assert param.grad.abs().sum() > 0
+    # 0 is RVT's width; the suite preset with the option, as lerobot-train builds it.
+    assert SMALL.patch_width == 8 and dataclasses.replace(SMALL, patch_channels=0).patch_width == 8
+    sigma = SigmaConfig(preset="suite", device="cpu", patch_channels=128)
+    assert sigma.network_config().patch_width == 128
+    with pytest.raises(ValueError, match="patch_channels"):
+        dataclasses.replace(SMALL, patch_channels=10)
+
+
 def test_proprio_film_starts_as_identity_then_lets_the_heatmap_read_the_proprio():
     """Zero-initialised, the proprio FiLM leaves the network as it was; its weights get gradients from the
     translation loss alone, and once they are non-zero the heatmap changes with the proprio vector."""
