@@ -137,8 +137,9 @@ class NetworkConfig:
             )
         if self.im_channels % 4 or self.attn_dim % 4 or self.patch_channels % 4 or self.patch_channels < 0:
             raise ValueError(
-                "im_channels, patch_channels and attn_dim must be multiples of 4 (GroupNorm(4, .)); "
-                f"got {self.im_channels}, {self.patch_channels}, {self.attn_dim}"
+                "im_channels, patch_channels and attn_dim must be multiples of 4 (GroupNorm(4, .)), "
+                f"patch_channels 0 (im_channels) or more; got {self.im_channels}, {self.patch_channels}, "
+                f"{self.attn_dim}"
             )
 
     @property
