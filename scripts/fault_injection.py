@@ -40,7 +40,6 @@ exits 1 if any kill point failed, 2 if the clean run itself failed.
 from __future__ import annotations
 
 import contextlib
-import ctypes
 import json
 import os
 import random
@@ -49,18 +48,20 @@ import signal
 import subprocess
 import sys
 import time
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass
 from pathlib import Path
 from typing import Any
 
 import draccus
 
+# Siblings under scripts/ (on sys.path when this file runs as a script; tests/scripts/script_module.py adds it).
+import process_group
+from collection_compare import Comparison, compare_trees, files_under, video_frames
+from process_group import describe, end_group, log_tail, processes_of, survivors
+
 os.environ.setdefault("HF_HUB_OFFLINE", "1")
 
 TARGETS = ("group", "parent", "alternate")
-# Fields of shard.json / collect.json that differ between two runs of the same collection (times, and whether
-# this run reused or redid a shard); a file's sha256 is left out because each file is compared itself.
-VOLATILE = frozenset({"record_s", "render_s", "write_s", "total_s", "skipped", "redone"})
 # How long the processes of a killed run may take to end.
 ORPHAN_WAIT_S = 15.0
 
@@ -162,7 +163,7 @@ def remove(path: Path) -> None:
 
 
 # ---------------------------------------------------------------------------------------------------------------
-# Processes
+# The collection as a process
 
 
 def sigma_data_command() -> list[str]:
@@ -170,221 +171,18 @@ def sigma_data_command() -> list[str]:
     return [str(script)] if script.exists() else [sys.executable, "-m", "sigma_data.cli"]
 
 
-def _die_with_this_script() -> None:  # runs in the child between fork and exec
-    with contextlib.suppress(Exception):
-        ctypes.CDLL(None).prctl(1, signal.SIGKILL)  # PR_SET_PDEATHSIG: a killed script leaves no collection
-
-
 def start(args: list[str], log: Path) -> subprocess.Popen:
-    """``sigma-data args`` in a new session (its own process group), output to ``log``."""
-    env = {**os.environ, "HF_HUB_OFFLINE": "1"}
-    with log.open("w") as sink:
-        return subprocess.Popen(
-            sigma_data_command() + args,
-            stdout=sink,
-            stderr=subprocess.STDOUT,
-            stdin=subprocess.DEVNULL,
-            start_new_session=True,
-            preexec_fn=_die_with_this_script,
-            env=env,
-        )
-
-
-def _alive(p: Any) -> bool:
-    import psutil
-
-    try:
-        return p.status() != psutil.STATUS_ZOMBIE
-    except psutil.NoSuchProcess:
-        return False
-
-
-def processes_of(pid: int) -> list[Any]:
-    """``pid`` and every process below it or in its process group (psutil processes)."""
-    import psutil
-
-    found: dict[int, Any] = {}
-    with contextlib.suppress(psutil.NoSuchProcess):
-        root = psutil.Process(pid)
-        found[pid] = root
-        for child in root.children(recursive=True):
-            found[child.pid] = child
-    for p in psutil.process_iter():
-        with contextlib.suppress(OSError, psutil.Error):
-            if p.pid not in found and os.getpgid(p.pid) == pid:
-                found[p.pid] = p
-    return list(found.values())
-
-
-def survivors(known: list[Any], group: int, wait_s: float) -> list[Any]:
-    """Which of ``known`` (and of process group ``group``) still run after up to ``wait_s`` seconds."""
-    import psutil
-
-    deadline = time.monotonic() + wait_s
-    while True:
-        alive = {p.pid: p for p in known if _alive(p)}
-        for p in psutil.process_iter():
-            with contextlib.suppress(OSError, psutil.Error):
-                if os.getpgid(p.pid) == group and _alive(p):
-                    alive[p.pid] = p
-        if not alive or time.monotonic() >= deadline:
-            return list(alive.values())
-        time.sleep(0.2)
-
-
-def end_group(proc: subprocess.Popen) -> None:
-    """SIGKILL to ``proc``'s process group (cleanup on the way out)."""
-    with contextlib.suppress(ProcessLookupError, PermissionError):
-        os.killpg(proc.pid, signal.SIGKILL)
-    with contextlib.suppress(Exception):
-        proc.wait(timeout=10)
-
-
-def describe(p: Any) -> str:
-    with contextlib.suppress(Exception):
-        return f"{p.pid} {' '.join(p.cmdline())[:100]}"
-    return str(p.pid)
+    """``sigma-data args`` in its own process group, output to ``log`` (scripts/process_group.py)."""
+    return process_group.start(sigma_data_command() + args, log)
 
 
 def run_to_end(args: list[str], log: Path, timeout_s: float) -> tuple[int | None, float, list[str]]:
-    """Run ``sigma-data args`` to completion: (exit status or None if it hung, wall seconds, processes of it
-    still running afterwards)."""
-    t0 = time.monotonic()
-    proc = start(args, log)
-    try:
-        try:
-            rc: int | None = proc.wait(timeout=timeout_s)
-        except subprocess.TimeoutExpired:
-            rc = None
-        wall = time.monotonic() - t0
-        left = survivors(processes_of(proc.pid), proc.pid, wait_s=5.0)
-        return rc, wall, [describe(p) for p in left]
-    finally:
-        end_group(proc)
-
-
-def log_tail(log: Path, lines: int = 15) -> str:
-    with contextlib.suppress(OSError):
-        return "\n".join(log.read_text(errors="replace").splitlines()[-lines:])
-    return ""
+    """``sigma-data args`` run to completion (scripts/process_group.py)."""
+    return process_group.run_to_end(sigma_data_command() + args, log, timeout_s)
 
 
 # ---------------------------------------------------------------------------------------------------------------
-# Comparing two collections
-
-
-@dataclass
-class Comparison:
-    """Files equal byte for byte, files equal in content only (by reason), and the differences."""
-
-    identical: int = 0
-    equivalent: dict[str, int] = field(default_factory=dict)
-    problems: list[str] = field(default_factory=list)
-
-    def add(self, other: Comparison) -> None:
-        self.identical += other.identical
-        for k, v in other.equivalent.items():
-            self.equivalent[k] = self.equivalent.get(k, 0) + v
-        self.problems += other.problems
-
-    def line(self) -> str:
-        same = f"{self.identical} files identical"
-        if self.equivalent:
-            same += ", " + ", ".join(f"{n} equal in {why}" for why, n in sorted(self.equivalent.items()))
-        return same
-
-
-def files_under(root: Path) -> list[str]:
-    return sorted(p.relative_to(root).as_posix() for p in root.rglob("*") if p.is_file() or p.is_symlink())
-
-
-def _normalized_record(data: Any) -> Any:
-    """A ``shard.json`` / ``collect.json`` without what legitimately differs between two runs."""
-    if isinstance(data, dict):
-        return {k: _normalized_record(v) for k, v in data.items() if k not in VOLATILE and k != "sha256"}
-    if isinstance(data, list):
-        return [_normalized_record(v) for v in data]
-    return data
-
-
-def _parquet_equal(a: Path, b: Path) -> bool:
-    """Same schema, same rows, same schema metadata but for the ``datasets`` fingerprint (random per run when
-    ``datasets`` cannot hash how the table was made)."""
-    import pyarrow.parquet as pq
-
-    ta, tb = pq.read_table(a), pq.read_table(b)
-    if not ta.equals(tb):
-        return False
-
-    def meta(t: Any) -> dict[bytes, Any]:
-        out: dict[bytes, Any] = dict(t.schema.metadata or {})
-        if b"huggingface" in out:
-            hf = json.loads(out[b"huggingface"])
-            hf.pop("fingerprint", None)
-            out[b"huggingface"] = hf
-        return out
-
-    return meta(ta) == meta(tb)
-
-
-def video_frames(path: Path) -> list[Any]:
-    """Every frame of a video file, decoded (NumPy arrays)."""
-    import av
-
-    with av.open(str(path)) as container:
-        return [f.to_ndarray() for f in container.decode(video=0)]
-
-
-def _videos_equal(a: Path, b: Path) -> bool:
-    import numpy as np
-
-    fa, fb = video_frames(a), video_frames(b)
-    return len(fa) == len(fb) and all(np.array_equal(x, y) for x, y in zip(fa, fb, strict=True))
-
-
-def compare_file(a: Path, b: Path) -> str | None:
-    """``"bytes"`` if equal byte for byte, the reason they are equal in content (``"timings"``, ``"key order"``,
-    ``"parquet fingerprint"``, ``"decoded frames"``), or None if they differ."""
-    if a.stat().st_size == b.stat().st_size and a.read_bytes() == b.read_bytes():
-        return "bytes"
-    try:
-        if a.name in ("shard.json", "collect.json"):
-            same = _normalized_record(json.loads(a.read_text())) == _normalized_record(
-                json.loads(b.read_text())
-            )
-            return "run timings" if same else None
-        if a.suffix == ".json":
-            return "key order" if json.loads(a.read_text()) == json.loads(b.read_text()) else None
-        if a.suffix == ".parquet":
-            return "parquet fingerprint" if _parquet_equal(a, b) else None
-        if a.suffix == ".mp4":
-            return "decoded frames" if _videos_equal(a, b) else None
-    except Exception:  # unreadable in one of the runs: not equal
-        return None
-    return None
-
-
-def compare_trees(clean: Path, run: Path) -> Comparison:
-    """Every file under ``run`` against the same path under ``clean`` (and files only one of them has)."""
-    result = Comparison()
-    if not run.is_dir():
-        result.problems.append(f"{run} is missing")
-        return result
-    a, b = files_under(clean), files_under(run)
-    only_clean, only_run = sorted(set(a) - set(b)), sorted(set(b) - set(a))
-    if only_clean:
-        result.problems.append(f"missing from {run}: {', '.join(only_clean[:5])}")
-    if only_run:
-        result.problems.append(f"not in the clean run: {', '.join(only_run[:5])}")
-    for rel in sorted(set(a) & set(b)):
-        how = compare_file(clean / rel, run / rel)
-        if how is None:
-            result.problems.append(f"{rel} differs from the clean run's")
-        elif how == "bytes":
-            result.identical += 1
-        else:
-            result.equivalent[how] = result.equivalent.get(how, 0) + 1
-    return result
+# Checking a collection
 
 
 def collect_config(cfg: FaultInjectionConfig, out: Path) -> Any:

@@ -11,7 +11,10 @@ SCRIPTS = Path(__file__).resolve().parents[2] / "scripts"
 
 
 def load_script(name: str) -> ModuleType:
-    """``scripts/<name>.py`` as the module ``name`` (registered in ``sys.modules``: dataclasses look it up)."""
+    """``scripts/<name>.py`` as the module ``name`` (registered in ``sys.modules``: dataclasses look it up). The
+    script's sibling modules import as they do when it runs as a script (``scripts/`` on ``sys.path``)."""
+    if str(SCRIPTS) not in sys.path:
+        sys.path.append(str(SCRIPTS))
     spec = importlib.util.spec_from_file_location(name, SCRIPTS / f"{name}.py")
     module = importlib.util.module_from_spec(spec)
     sys.modules[name] = module
