@@ -26,12 +26,6 @@ class Comparison:
     equivalent: dict[str, int] = field(default_factory=dict)
     problems: list[str] = field(default_factory=list)
 
-    def add(self, other: Comparison) -> None:
-        self.identical += other.identical
-        for k, v in other.equivalent.items():
-            self.equivalent[k] = self.equivalent.get(k, 0) + v
-        self.problems += other.problems
-
     def line(self) -> str:
         same = f"{self.identical} files identical"
         if self.equivalent:
@@ -88,7 +82,7 @@ def _videos_equal(a: Path, b: Path) -> bool:
 
 
 def compare_file(a: Path, b: Path) -> str | None:
-    """``"bytes"`` if equal byte for byte, the reason they are equal in content (``"timings"``, ``"key order"``,
+    """``"bytes"`` if equal byte for byte, the reason they are equal in content (``"run timings"``, ``"key order"``,
     ``"parquet fingerprint"``, ``"decoded frames"``), or None if they differ."""
     if a.stat().st_size == b.stat().st_size and a.read_bytes() == b.read_bytes():
         return "bytes"

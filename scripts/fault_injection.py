@@ -171,14 +171,19 @@ def sigma_data_command() -> list[str]:
     return [str(script)] if script.exists() else [sys.executable, "-m", "sigma_data.cli"]
 
 
+def offline_env() -> dict[str, str]:
+    """This process's environment with the Hugging Face hub offline (a collection never downloads)."""
+    return {**os.environ, "HF_HUB_OFFLINE": "1"}
+
+
 def start(args: list[str], log: Path) -> subprocess.Popen:
     """``sigma-data args`` in its own process group, output to ``log`` (scripts/process_group.py)."""
-    return process_group.start(sigma_data_command() + args, log)
+    return process_group.start(sigma_data_command() + args, log, offline_env())
 
 
 def run_to_end(args: list[str], log: Path, timeout_s: float) -> tuple[int | None, float, list[str]]:
     """``sigma-data args`` run to completion (scripts/process_group.py)."""
-    return process_group.run_to_end(sigma_data_command() + args, log, timeout_s)
+    return process_group.run_to_end(sigma_data_command() + args, log, timeout_s, offline_env())
 
 
 # ---------------------------------------------------------------------------------------------------------------

@@ -21,9 +21,9 @@ def _die_with_this_script() -> None:  # runs in the child between fork and exec
         ctypes.CDLL(None).prctl(1, signal.SIGKILL)  # PR_SET_PDEATHSIG: a killed parent leaves no child
 
 
-def start(command: list[str], log: Path) -> subprocess.Popen:
-    """``command`` in a new session (its own process group), output to ``log``; it dies with this process."""
-    env = {**os.environ, "HF_HUB_OFFLINE": "1"}
+def start(command: list[str], log: Path, env: dict[str, str] | None = None) -> subprocess.Popen:
+    """``command`` in a new session (its own process group), with environment ``env`` (this process's if None),
+    output to ``log``; it dies with this process."""
     with log.open("w") as sink:
         return subprocess.Popen(
             command,
@@ -92,11 +92,13 @@ def describe(p: Any) -> str:
     return str(p.pid)
 
 
-def run_to_end(command: list[str], log: Path, timeout_s: float) -> tuple[int | None, float, list[str]]:
+def run_to_end(
+    command: list[str], log: Path, timeout_s: float, env: dict[str, str] | None = None
+) -> tuple[int | None, float, list[str]]:
     """Run ``command`` to completion: (exit status or None if it hung, wall seconds, processes of it
     still running afterwards)."""
     t0 = time.monotonic()
-    proc = start(command, log)
+    proc = start(command, log, env)
     try:
         try:
             rc: int | None = proc.wait(timeout=timeout_s)
