@@ -28,8 +28,9 @@ from tqdm import tqdm
 import sigma_data  # noqa: F401  (headless GL before robosuite)
 from benchmarks.report import write_report
 from pipelines.evaluate import wilson_interval
-from sigma_data.control import EnvDriver, KeyframeExecutor
+from sigma_data.control import EnvDriver
 from sigma_data.experts.base import ExpertFailure
+from sigma_data.keyframe_executor import KeyframeExecutor
 from sigma_data.mujoco_gl import quiet_robosuite
 from sigma_data.suite import TASKS, close_env, get_task, get_variation, make_env, reset_env
 from sigma_data.tasks.spec import TaskSpec, Variation

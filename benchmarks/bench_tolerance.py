@@ -38,7 +38,8 @@ from benchmarks.bench_demos import cell as demos_cell
 from benchmarks.bench_experts import run_expert
 from benchmarks.report import write_report
 from pipelines.evaluate import wilson_interval
-from sigma_data.control import EnvDriver, KeyframeExecutor
+from sigma_data.control import EnvDriver
+from sigma_data.keyframe_executor import KeyframeExecutor
 from sigma_data.mujoco_gl import quiet_robosuite
 from sigma_data.suite import close_env, get_task, get_variation, make_env, reset_env
 

@@ -1,7 +1,7 @@
 """``sigma-eval``: closed-loop evaluation of a sigma checkpoint on the robosuite task suite.
 
 Each episode resets a task variation with a seed, then asks the policy for one 9-D keyframe per step and lets
-the :class:`~sigma_data.control.KeyframeExecutor` drive the robot there (``sigma_data.sim_env``), until the
+the :class:`~sigma_data.keyframe_executor.KeyframeExecutor` drive the robot there (``sigma_data.sim_env``), until the
 task's success check passes or ``max_keyframes`` keyframes were taken (one episode: ``pipelines/rollout.py``).
 The observation goes through the same LeRobot path as ``lerobot-eval`` (``preprocess_observation`` → the
 checkpoint's saved pre-processor → ``select_action`` → post-processor), so numbers agree with it.

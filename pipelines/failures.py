@@ -118,7 +118,7 @@ def nearest_variation(env) -> dict[str, str]:
     one object."""
     import numpy as np
 
-    from sigma_data.control import grip_site_frame
+    from sigma_data.poses import grip_site_frame
 
     task = env.task
     if task.target is None or len(task.variations) < 2:
@@ -151,7 +151,7 @@ def grasp_fit(env, variation: str) -> dict[str, int]:
     """
     import numpy as np
 
-    from sigma_data.control import grip_site_frame
+    from sigma_data.poses import grip_site_frame
     from sigma_data.suite import get_variation
     from sigma_data.tasks.geometry import ridge_direction
 

@@ -1,5 +1,5 @@
 """One closed-loop episode of ``sigma-eval``, played in a worker process: the policy asks for a keyframe, the
-:class:`~sigma_data.control.KeyframeExecutor` (inside ``sigma_data.sim_env``) drives the arm there, and the episode
+:class:`~sigma_data.keyframe_executor.KeyframeExecutor` (inside ``sigma_data.sim_env``) drives the arm there, and the episode
 ends on the task's success or after ``max_keyframes`` keyframes.
 
 :class:`RolloutWorker` holds one policy copy, its processors and one cached environment per variation.

@@ -7,14 +7,15 @@ One set of primitives serves the scripted experts, keyframe replay and closed-lo
   the reference. Stops when converged, stalled or out of budget.
 * :func:`actuate_gripper` -- hold the current pose and command the gripper until the fingers have moved
   and come to rest.
-* :class:`KeyframeExecutor` -- drives to a 9-D keyframe ``[x, y, z, qx, qy, qz, qw, gripper_open,
-  ignore_collision]`` with RLBench ``MoveArmThenGripper`` semantics (arm first, then the gripper if its
-  state changes), optionally via a safe height when ``ignore_collision == 0``.
+* :func:`hold` -- hold the current pose for a number of control steps.
+
+``sigma_data/keyframe_executor.py`` builds the 9-D keyframe executor from them, and ``sigma_data/poses.py``
+holds the pose conventions and simulator queries they use.
 
 Conventions
 -----------
-* Poses are the **grip site** (``env.robots[0].eef_site_id["right"]``) in the world frame, metres;
-  quaternions are xyzw with w >= 0 (robosuite / scipy order, *not* MuJoCo's wxyz).
+* Poses are the **grip site** in the world frame, metres; quaternions are xyzw with w >= 0
+  (``sigma_data/poses.py``).
 * Actions are robosuite's 7-D OSC_POSE delta ``[dx, dy, dz, rx, ry, rz, grip]`` in ``[-1, 1]``, expressed
   in the robot base frame; one unit is 5 cm / 0.5 rad per control step. ``grip`` is +1 close, -1 open.
 * Everything drives the simulator through a *driver*: any object with ``env`` and ``step(action)``
@@ -31,10 +32,15 @@ from typing import Any, Protocol
 import numpy as np
 from scipy.spatial.transform import Rotation, Slerp
 
-# One definition each, shared with the recorder and the episode format; re-exported here for callers of the
-# motion primitives: ``canonical_quat`` (xyzw, w >= 0) and ``grip_site_pose`` (position, xyzw quaternion).
-from sigma_data.episode import canonical_quat
-from sigma_data.record import grip_site_pose
+from sigma_data.poses import (
+    arm_joint_speed,
+    base_rotation,
+    grip_site_frame,
+    gripper_width,
+    mat_to_quat,
+    quat_to_mat,
+    rotation_error,
+)
 
 # OSC_POSE delta scale of the default BASIC composite controller (output_max for input 1).
 POS_SCALE = 0.05  # metres per unit action per control step
@@ -43,41 +49,21 @@ ROT_SCALE = 0.5  # radians per unit action per control step
 GRIP_OPEN = -1.0
 GRIP_CLOSE = 1.0
 
-# Top-down grasp orientation: site x (finger closing axis) = world +y, site z (approach) = world -z.
-R_DOWN = np.array([[0.0, 1.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, -1.0]])
-
-
 __all__ = [
     "GRIP_CLOSE",
     "GRIP_OPEN",
-    "R_DOWN",
+    "POS_SCALE",
+    "ROT_SCALE",
     "Driver",
     "EnvDriver",
-    "ExecutorConfig",
     "GripperConfig",
-    "KeyframeExecutor",
-    "KeyframeResult",
     "MoveResult",
     "MoveStatus",
     "ServoConfig",
     "actuate_gripper",
-    "arm_joint_speed",
-    "body_pose",
-    "canonical_quat",
-    "closest_symmetric_yaw",
-    "grip_site_frame",
-    "grip_site_pose",
-    "gripper_width",
     "hold",
-    "mat_to_quat",
     "move_to",
-    "quat_to_mat",
-    "rotation_error",
     "servo_action",
-    "site_yaw",
-    "top_down_quat",
-    "wrap_angle",
-    "yaw_rotation",
 ]
 
 
@@ -90,90 +76,8 @@ class Driver(Protocol):
 
 
 # --------------------------------------------------------------------------------------------------
-# Pose helpers
+# The servo action
 # --------------------------------------------------------------------------------------------------
-
-
-def mat_to_quat(rot: np.ndarray) -> np.ndarray:
-    """3x3 rotation matrix -> canonical xyzw quaternion (w >= 0)."""
-    return canonical_quat(Rotation.from_matrix(rot).as_quat())
-
-
-def quat_to_mat(quat_xyzw: Sequence[float]) -> np.ndarray:
-    """xyzw quaternion -> 3x3 rotation matrix."""
-    return Rotation.from_quat(np.asarray(quat_xyzw, dtype=np.float64)).as_matrix()
-
-
-def yaw_rotation(yaw: float) -> np.ndarray:
-    """Rotation by ``yaw`` radians about world +z (3x3)."""
-    c, s = np.cos(yaw), np.sin(yaw)
-    return np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
-
-
-def top_down_quat(yaw: float) -> np.ndarray:
-    """Grip-site quaternion (xyzw) pointing down with the top-down frame rotated by ``yaw`` about world z.
-
-    At ``yaw = 0`` the fingers close along world y; the closing axis is ``(-sin yaw, cos yaw, 0)``.
-    """
-    return mat_to_quat(yaw_rotation(yaw) @ R_DOWN)
-
-
-def site_yaw(rot: np.ndarray) -> float:
-    """Yaw (rad) of a roughly top-down grip-site rotation, the inverse of :func:`top_down_quat`."""
-    x_axis = rot[:, 0]
-    return float(np.arctan2(-x_axis[0], x_axis[1]))
-
-
-def wrap_angle(angle: float) -> float:
-    """Wrap an angle to [-pi, pi)."""
-    return float((angle + np.pi) % (2 * np.pi) - np.pi)
-
-
-def closest_symmetric_yaw(object_yaw: float, reference_yaw: float, period: float) -> float:
-    """The yaw ``object_yaw + k * period`` closest to ``reference_yaw`` (radians)."""
-    k = np.round((reference_yaw - object_yaw) / period)
-    return float(object_yaw + k * period)
-
-
-def grip_site_frame(env: Any) -> tuple[np.ndarray, np.ndarray]:
-    """World pose of the grip site as position (3,) metres and rotation matrix (3, 3).
-
-    The servo works with rotation matrices; :func:`grip_site_pose` (re-exported from ``sigma_data.record``)
-    gives the same pose as position and xyzw quaternion.
-    """
-    site_id = env.robots[0].eef_site_id["right"]
-    pos = np.array(env.sim.data.site_xpos[site_id], dtype=np.float64)
-    rot = np.array(env.sim.data.site_xmat[site_id], dtype=np.float64).reshape(3, 3)
-    return pos, rot
-
-
-def body_pose(env: Any, body_name: str) -> tuple[np.ndarray, np.ndarray]:
-    """World pose of a MuJoCo body by name: position (3,) and rotation matrix (3, 3)."""
-    body_id = env.sim.model.body_name2id(body_name)
-    pos = np.array(env.sim.data.body_xpos[body_id], dtype=np.float64)
-    rot = np.array(env.sim.data.body_xmat[body_id], dtype=np.float64).reshape(3, 3)
-    return pos, rot
-
-
-def _base_rotation(env: Any) -> np.ndarray:
-    """Rotation of the robot base (the OSC input frame) in the world."""
-    return body_pose(env, env.robots[0].robot_model.root_body)[1]
-
-
-def arm_joint_speed(env: Any) -> float:
-    """Largest absolute arm joint velocity (rad/s)."""
-    return float(np.max(np.abs(env.sim.data.qvel[env.robots[0]._ref_joint_vel_indexes])))
-
-
-def gripper_width(env: Any) -> float:
-    """Finger opening in metres (``q1 - q2``; Panda: 0.078 fully open, ~0.0 closed empty)."""
-    q = env.sim.data.qpos[env.robots[0]._ref_gripper_joint_pos_indexes["right"]]
-    return float(q[0] - q[1])
-
-
-def rotation_error(rot_a: np.ndarray, rot_b: np.ndarray) -> float:
-    """Geodesic angle (rad) between two rotation matrices."""
-    return float(np.linalg.norm(Rotation.from_matrix(rot_a @ rot_b.T).as_rotvec()))
 
 
 def servo_action(env: Any, ref_pos: np.ndarray, ref_rot: np.ndarray, grip: float) -> np.ndarray:
@@ -183,7 +87,7 @@ def servo_action(env: Any, ref_pos: np.ndarray, ref_rot: np.ndarray, grip: float
     controller's unit action and clipped to [-1, 1].
     """
     pos, rot = grip_site_frame(env)
-    base_rot_t = _base_rotation(env).T
+    base_rot_t = base_rotation(env).T
     dpos = base_rot_t @ (ref_pos - pos) / POS_SCALE
     drot = base_rot_t @ Rotation.from_matrix(ref_rot @ rot.T).as_rotvec() / ROT_SCALE
     action = np.zeros(7)
@@ -392,87 +296,3 @@ class EnvDriver:
     @property
     def num_steps(self) -> int:
         return len(self.actions)
-
-
-# --------------------------------------------------------------------------------------------------
-# Keyframe executor
-# --------------------------------------------------------------------------------------------------
-
-
-@dataclass(frozen=True)
-class ExecutorConfig:
-    """:class:`KeyframeExecutor` parameters (docs/robosuite.md §4.3)."""
-
-    servo: ServoConfig = ServoConfig(pos_tol=0.005, rot_tol=0.05)
-    gripper: GripperConfig = GripperConfig()
-    arm_budget: int = 60  # control steps per keyframe for the arm motion (3 s at 20 Hz)
-    use_via_point: bool = False  # when ignore_collision == 0, go via a safe height first
-    via_height: float = 0.05  # metres above the higher of start and target
-    via_min_height_change: float = 0.03  # only use a via point if the height changes by more than this
-
-
-@dataclass(frozen=True)
-class KeyframeResult:
-    """What one :meth:`KeyframeExecutor.execute` call did."""
-
-    arm: MoveResult
-    gripper_steps: int
-    steps: int
-
-
-class KeyframeExecutor:
-    """Drive the robot to 9-D keyframes ``[x, y, z, qx, qy, qz, qw, gripper_open, ignore_collision]``.
-
-    RLBench ``MoveArmThenGripper`` semantics: the arm moves to the pose with the current gripper command
-    held (:func:`move_to`, budget ``arm_budget`` steps), then, if ``gripper_open`` differs from the current
-    gripper state, the gripper actuates (:func:`actuate_gripper`). With ``use_via_point`` and
-    ``ignore_collision == 0``, a height change goes via a point ``via_height`` above the higher end (a crude
-    stand-in for a collision-free planner).
-
-    The executor tracks the gripper state it commanded; it starts open (``reset_env`` opens it fully).
-    """
-
-    def __init__(self, driver: Driver, config: ExecutorConfig = ExecutorConfig(), gripper_open: bool = True):
-        self.driver = driver
-        self.config = config
-        self.gripper_open = gripper_open
-
-    def execute(self, keyframe: Sequence[float]) -> KeyframeResult:
-        kf = np.asarray(keyframe, dtype=np.float64)
-        if kf.shape != (9,) or not np.all(np.isfinite(kf)):
-            raise ValueError(f"keyframe must be 9 finite values [xyz, qxyzw, open, ignore_coll], got {kf!r}")
-        pos, quat = kf[:3], canonical_quat(kf[3:7])
-        want_open = bool(kf[7] > 0.5)
-        ignore_collision = bool(kf[8] > 0.5)
-        grip = GRIP_OPEN if self.gripper_open else GRIP_CLOSE
-
-        steps = 0
-        cfg = self.config
-        if cfg.use_via_point and not ignore_collision:
-            cur_pos, cur_rot = grip_site_frame(self.driver.env)
-            if abs(pos[2] - cur_pos[2]) > cfg.via_min_height_change:
-                via_z = max(pos[2], cur_pos[2]) + cfg.via_height
-                up = move_to(
-                    self.driver,
-                    [*cur_pos[:2], via_z],
-                    mat_to_quat(cur_rot),
-                    grip,
-                    cfg.servo,
-                    max_steps=cfg.arm_budget // 2,
-                )
-                over = move_to(
-                    self.driver, [*pos[:2], via_z], quat, grip, cfg.servo, max_steps=cfg.arm_budget // 2
-                )
-                steps += up.steps + over.steps
-        arm = move_to(self.driver, pos, quat, grip, cfg.servo, max_steps=cfg.arm_budget)
-        steps += arm.steps
-
-        gripper_steps = 0
-        if want_open != self.gripper_open:
-            gripper_steps = actuate_gripper(self.driver, open=want_open, config=cfg.gripper)
-            self.gripper_open = want_open
-        return KeyframeResult(arm=arm, gripper_steps=gripper_steps, steps=steps + gripper_steps)
-
-    def execute_all(self, keyframes: Sequence[Sequence[float]] | np.ndarray) -> list[KeyframeResult]:
-        """Execute keyframes in order (shape (K, 9))."""
-        return [self.execute(kf) for kf in keyframes]

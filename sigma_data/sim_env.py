@@ -4,7 +4,7 @@
 
 * ``control="keyframe"`` (sigma's policy): each ``step(action)`` hands the 9-D keyframe ``[x, y, z, qx, qy, qz,
   qw, gripper_open, ignore_collision]`` (world frame, grip site, the keyframe dataset's action) to the
-  :class:`~sigma_data.control.KeyframeExecutor`, which drives the arm there and then actuates the gripper;
+  :class:`~sigma_data.keyframe_executor.KeyframeExecutor`, which drives the arm there and then actuates the gripper;
 * ``control="dense"`` (stock LeRobot policies trained on the dense dataset): each ``step(action)`` is one
   robosuite control step (20 Hz) of the dense dataset's 7-D OSC_POSE delta ``[dx, dy, dz, rx, ry, rz, grip]``
   (grip +1 closes), exactly what the scripted experts executed when the data was recorded.
@@ -37,7 +37,8 @@ import numpy as np
 
 from sigma_data.cameras import DEFAULT_CAMERAS, CameraRig, RenderConfig
 from sigma_data.contract import ACTION_NAMES
-from sigma_data.control import EnvDriver, ExecutorConfig, KeyframeExecutor
+from sigma_data.control import EnvDriver
+from sigma_data.keyframe_executor import ExecutorConfig, KeyframeExecutor
 from sigma_data.record import robot_state
 from sigma_data.suite import TaskSpec, close_env, get_task, get_variation, make_env, reset_env
 

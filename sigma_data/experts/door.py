@@ -23,8 +23,8 @@ from typing import TYPE_CHECKING
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from sigma_data.control import grip_site_frame, mat_to_quat, site_yaw, top_down_quat
 from sigma_data.experts.base import EpisodeRecorder, ExpertFailure, WaypointArm
+from sigma_data.poses import grip_site_frame, mat_to_quat, site_yaw, top_down_quat
 from sigma_data.tasks.door import hinge_angle
 
 if TYPE_CHECKING:

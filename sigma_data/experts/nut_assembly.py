@@ -17,7 +17,8 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from sigma_data.control import (
+from sigma_data.experts.base import EpisodeRecorder, ExpertFailure, WaypointArm, check_grasp
+from sigma_data.poses import (
     body_pose,
     closest_symmetric_yaw,
     grip_site_frame,
@@ -25,7 +26,6 @@ from sigma_data.control import (
     top_down_quat,
     wrap_angle,
 )
-from sigma_data.experts.base import EpisodeRecorder, ExpertFailure, WaypointArm, check_grasp
 from sigma_data.tasks.nut_assembly import nut_object, peg_body_id
 
 if TYPE_CHECKING:

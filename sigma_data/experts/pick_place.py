@@ -22,8 +22,8 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from sigma_data.control import grip_site_frame, site_yaw, top_down_quat, wrap_angle
 from sigma_data.experts.base import EpisodeRecorder, ExpertFailure, WaypointArm, check_grasp
+from sigma_data.poses import grip_site_frame, site_yaw, top_down_quat, wrap_angle
 from sigma_data.tasks.geometry import ridge_direction
 from sigma_data.tasks.pick_place import object_index, object_points
 

@@ -237,8 +237,8 @@ def test_how_the_object_sits_between_the_fingers_in_real_robosuite():
     import numpy as np
 
     from pipelines.failures import grasp_fit
-    from sigma_data.control import grip_site_frame, site_yaw, top_down_quat
     from sigma_data.experts.pick_place import grasp_band, plan_grasp
+    from sigma_data.poses import grip_site_frame, site_yaw, top_down_quat
     from sigma_data.sim_env import SigmaRobosuiteEnv
 
     env = SigmaRobosuiteEnv("pick_place:bread", cameras=("agentview",), image_size=32)
@@ -266,8 +266,8 @@ def test_the_milk_cartons_ridge_against_the_closing_axis_in_real_robosuite():
     import numpy as np
 
     from pipelines.failures import grasp_fit
-    from sigma_data.control import grip_site_frame, site_yaw, top_down_quat
     from sigma_data.experts.pick_place import grasp_band, plan_grasp
+    from sigma_data.poses import grip_site_frame, site_yaw, top_down_quat
     from sigma_data.sim_env import SigmaRobosuiteEnv
 
     env = SigmaRobosuiteEnv("pick_place:milk", cameras=("agentview",), image_size=32)

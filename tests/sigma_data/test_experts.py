@@ -8,8 +8,9 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 
-from sigma_data.control import EnvDriver, gripper_width
+from sigma_data.control import EnvDriver
 from sigma_data.experts.base import ExpertFailure, WaypointArm
+from sigma_data.poses import gripper_width
 from sigma_data.suite import get_task, get_variation, make_env, reset_env
 
 
@@ -292,7 +293,7 @@ def test_bench_table_has_intervals_and_an_all_variations_row():
     ],
 )
 def test_previously_failing_seed_succeeds_and_replays(task_name, variation_name, seed, cause):
-    from sigma_data.control import KeyframeExecutor
+    from sigma_data.keyframe_executor import KeyframeExecutor
 
     task = get_task(task_name)
     variation = get_variation(task, variation_name)
