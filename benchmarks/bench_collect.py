@@ -119,9 +119,10 @@ def run_baseline(cfg: BenchConfig, root: Path) -> dict:
     from lerobot.datasets.lerobot_dataset import LeRobotDataset
     from robosuite.controllers import load_composite_controller_config
 
+    from sigma_data.dataset_layout import DatasetLayout, depth_encoder_config
     from sigma_data.experts.base import ExpertFailure
     from sigma_data.suite import CONTROL_FREQ, CONTROLLER, ROBOT, close_env, get_task, reset_env
-    from sigma_data.writers import DatasetLayout, DenseWriter, depth_encoder_config
+    from sigma_data.writers import DenseWriter
 
     cams = tuple(c for c in cfg.cameras.split(","))
     task = get_task(cfg.task)

@@ -33,11 +33,12 @@ from sigma_data.cameras import CameraRig
 from sigma_data.collect.config import DATASETS, MARKER, CollectConfig, ShardResult, ShardSpec
 from sigma_data.collect.envs import cached_env, cached_replay
 from sigma_data.collect.manifest import shard_files
+from sigma_data.dataset_layout import DatasetLayout
 from sigma_data.episode import Episode
 from sigma_data.files import write_json_atomic
 from sigma_data.keyframes import compare_keyframes, discover_keyframes
 from sigma_data.replay_render import RenderedFrames, ReplayRenderer, SceneSnapshot
-from sigma_data.writers import DatasetLayout, DenseWriter, KeyframeWriter, SigmaWriter, shared_frames
+from sigma_data.writers import DenseWriter, KeyframeWriter, SigmaWriter, shared_frames
 
 
 def _heuristic_vs_expert(ep: Episode) -> tuple[list[int], dict[str, float]]:

@@ -32,16 +32,10 @@ from typing import Any
 
 import numpy as np
 
+from sigma_data.dataset_layout import DatasetLayout, StaticCalibration
 from sigma_data.episode import CameraViews, Episode
 from sigma_data.output import OutputConfig
-from sigma_data.writers import (
-    DatasetLayout,
-    DenseWriter,
-    KeyframeWriter,
-    SigmaWriter,
-    StaticCalibration,
-    shared_frames,
-)
+from sigma_data.writers import DenseWriter, KeyframeWriter, SigmaWriter, shared_frames
 
 REPORT = "import.json"
 

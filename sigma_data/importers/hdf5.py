@@ -38,6 +38,7 @@ import numpy as np
 
 from sigma_data.cameras import CameraRig, RenderConfig, RenderOptions, check_cameras
 from sigma_data.contract import DENSE_ACTION_DIM, STATE_DIM, implausible_state
+from sigma_data.dataset_layout import DatasetLayout
 from sigma_data.episode import Episode, Keyframe, gripper_open_from_actions
 from sigma_data.importers import (
     DatasetSink,
@@ -50,7 +51,6 @@ from sigma_data.importers.model_files import foreign_files
 from sigma_data.keyframes import dedup_by_pose, discover_keyframes
 from sigma_data.output import OutputConfig
 from sigma_data.record import arm_joint_velocities, robot_state
-from sigma_data.writers import DatasetLayout
 
 Layout = Literal["robosuite", "robomimic"]
 

@@ -62,6 +62,7 @@ from typing import Any
 import numpy as np
 
 from sigma_data.cameras import parse_cameras
+from sigma_data.dataset_layout import DatasetLayout
 from sigma_data.episode import CameraStream, Episode, Keyframe, canonical_quat
 from sigma_data.importers import (
     DatasetSink,
@@ -73,7 +74,6 @@ from sigma_data.importers import (
 )
 from sigma_data.keyframes import discover_keyframes
 from sigma_data.output import OutputConfig
-from sigma_data.writers import DatasetLayout
 
 EPISODE_FILE = "episode.json"
 FRAMES_FILE = "frames.jsonl"

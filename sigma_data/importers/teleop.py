@@ -47,12 +47,12 @@ from typing import Any, Literal, Protocol, runtime_checkable
 import numpy as np
 
 from sigma_data.cameras import CameraRig, RenderOptions
+from sigma_data.dataset_layout import DatasetLayout
 from sigma_data.episode import Episode, Keyframe
 from sigma_data.importers import DatasetSink, ImportSummary
 from sigma_data.keyframes import discover_keyframes
 from sigma_data.output import OutputConfig
 from sigma_data.record import EpisodeRecorder
-from sigma_data.writers import DatasetLayout
 
 KeyframeMode = Literal["manual", "heuristic", "union"]
 

@@ -7,8 +7,9 @@ import pytest
 from lerobot.datasets.lerobot_dataset import LeRobotDataset
 
 from sigma_data.contract import read_sidecar
+from sigma_data.dataset_layout import DatasetLayout
 from sigma_data.episode import CameraStream, Episode, Keyframe
-from sigma_data.writers import DatasetLayout, DenseWriter, KeyframeWriter
+from sigma_data.writers import DenseWriter, KeyframeWriter
 
 H = W = 32  # SVT-AV1 crashes (SIGFPE) on 16x16 video
 T = 12
