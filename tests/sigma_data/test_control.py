@@ -13,15 +13,7 @@ from sigma_data.poses import (
     rotation_error,
     top_down_quat,
 )
-from sigma_data.suite import get_task, make_env, reset_env
-
-
-@pytest.fixture(scope="module")
-def lift():
-    task = get_task("lift")
-    env = make_env(task)
-    yield task, env
-    env.close()
+from sigma_data.suite import reset_env
 
 
 def test_move_to_converges_within_tolerance(lift):

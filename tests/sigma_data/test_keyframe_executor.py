@@ -7,15 +7,7 @@ import pytest
 
 from sigma_data.control import EnvDriver
 from sigma_data.keyframe_executor import KeyframeExecutor
-from sigma_data.suite import get_task, make_env, reset_env
-
-
-@pytest.fixture(scope="module")
-def lift():
-    task = get_task("lift")
-    env = make_env(task)
-    yield task, env
-    env.close()
+from sigma_data.suite import reset_env
 
 
 def test_executor_replays_lift_expert_keyframes(lift):

@@ -17,15 +17,7 @@ from sigma_data.poses import (
     wrap_angle,
 )
 from sigma_data.record import grip_site_pose
-from sigma_data.suite import get_task, make_env, reset_env
-
-
-@pytest.fixture(scope="module")
-def lift():
-    task = get_task("lift")
-    env = make_env(task)
-    yield task, env
-    env.close()
+from sigma_data.suite import reset_env
 
 
 def test_quaternion_helpers_are_xyzw_with_nonnegative_w():
