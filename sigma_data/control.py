@@ -36,8 +36,8 @@ from sigma_data.poses import (
     arm_joint_speed,
     base_rotation,
     grip_site_frame,
+    grip_site_pose,
     gripper_width,
-    mat_to_quat,
     quat_to_mat,
     rotation_error,
 )
@@ -287,10 +287,8 @@ class EnvDriver:
         if not self.actions:
             raise RuntimeError("mark_keyframe() called before any step()")
         self.env.sim.forward()  # site poses lag qpos by one substep after env.step
-        pos, rot = grip_site_frame(self.env)
-        self.keyframes.append(
-            np.concatenate([pos, mat_to_quat(rot), [float(gripper_open), float(ignore_collision)]])
-        )
+        pos, quat = grip_site_pose(self.env)
+        self.keyframes.append(np.concatenate([pos, quat, [float(gripper_open), float(ignore_collision)]]))
         self.keyframe_steps.append(len(self.actions) - 1)
 
     @property

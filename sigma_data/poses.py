@@ -27,6 +27,7 @@ __all__ = [
     "body_pose",
     "closest_symmetric_yaw",
     "grip_site_frame",
+    "grip_site_pose",
     "gripper_width",
     "mat_to_quat",
     "quat_to_mat",
@@ -82,13 +83,20 @@ def closest_symmetric_yaw(object_yaw: float, reference_yaw: float, period: float
 def grip_site_frame(env: Any) -> tuple[np.ndarray, np.ndarray]:
     """World pose of the grip site as position (3,) metres and rotation matrix (3, 3).
 
-    The servo works with rotation matrices; :func:`sigma_data.record.grip_site_pose`
-    gives the same pose as position and xyzw quaternion.
+    The servo works with rotation matrices; :func:`grip_site_pose` gives the same pose as position and xyzw
+    quaternion.
     """
     site_id = env.robots[0].eef_site_id["right"]
     pos = np.array(env.sim.data.site_xpos[site_id], dtype=np.float64)
     rot = np.array(env.sim.data.site_xmat[site_id], dtype=np.float64).reshape(3, 3)
     return pos, rot
+
+
+def grip_site_pose(env: Any) -> tuple[np.ndarray, np.ndarray]:
+    """World position (3,) and xyzw quaternion (4,, w >= 0) of the robot's grip site (the OSC reference): the
+    pose the recorder stores as ``observation.state``'s first 7 numbers."""
+    pos, rot = grip_site_frame(env)
+    return pos, mat_to_quat(rot)
 
 
 def body_pose(env: Any, body_name: str) -> tuple[np.ndarray, np.ndarray]:

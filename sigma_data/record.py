@@ -19,22 +19,12 @@ from sigma_data.episode import (
     STATE_DIM,
     Episode,
     Keyframe,
-    canonical_quat,
     hold_action,
     with_final_keyframe,
 )
+from sigma_data.poses import grip_site_pose
 
 ACTION_DIM = DENSE_ACTION_DIM  # robosuite OSC_POSE delta + gripper
-
-
-def grip_site_pose(env: Any) -> tuple[np.ndarray, np.ndarray]:
-    """World position (3,) and xyzw quaternion (4,, w >= 0) of the robot's grip site (the OSC reference)."""
-    from scipy.spatial.transform import Rotation
-
-    site = env.robots[0].eef_site_id["right"]
-    pos = np.array(env.sim.data.site_xpos[site], dtype=np.float64)
-    rot = np.array(env.sim.data.site_xmat[site], dtype=np.float64).reshape(3, 3)
-    return pos, canonical_quat(Rotation.from_matrix(rot).as_quat())
 
 
 def robot_state(env: Any, gripper_open: bool) -> np.ndarray:

@@ -83,7 +83,7 @@ def test_lift_expert_succeeds_with_sensible_keyframes(lift_env, seed: int):
 def test_the_whole_grip_site_path_stays_inside_the_task_box(task_name: str, variation_name: str):
     """The policy can only predict points inside ``bounds`` (its virtual views cover nothing else): every
     state an expert passes through, keyframes included, keeps 3 cm from the box's faces."""
-    from sigma_data.record import grip_site_pose
+    from sigma_data.poses import grip_site_pose
 
     task = get_task(task_name)
     lo, hi = np.array(task.bounds[:3]) + 0.03, np.array(task.bounds[3:]) - 0.03

@@ -9,6 +9,7 @@ from sigma_data.episode import canonical_quat
 from sigma_data.poses import (
     closest_symmetric_yaw,
     grip_site_frame,
+    grip_site_pose,
     mat_to_quat,
     quat_to_mat,
     rotation_error,
@@ -16,7 +17,6 @@ from sigma_data.poses import (
     top_down_quat,
     wrap_angle,
 )
-from sigma_data.record import grip_site_pose
 from sigma_data.suite import reset_env
 
 

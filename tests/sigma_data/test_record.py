@@ -3,7 +3,8 @@
 import numpy as np
 import pytest
 
-from sigma_data.record import EpisodeRecorder, grip_site_pose, robot_state
+from sigma_data.poses import grip_site_pose
+from sigma_data.record import EpisodeRecorder, robot_state
 from sigma_data.suite import get_task, make_env, reset_env
 
 

@@ -90,7 +90,7 @@ def lift_frame() -> dict:
     import robosuite
     from robosuite.utils import camera_utils as cu
 
-    from sigma_data.record import grip_site_pose
+    from sigma_data.poses import grip_site_pose
     from sigma_data.suite import close_env
 
     np.random.seed(0)  # robosuite draws the cube placement from the global numpy RNG
