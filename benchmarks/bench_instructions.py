@@ -1,7 +1,7 @@
 """How far apart the text encoder puts the suite's instructions, and what a fixed rescaling of its features changes.
 
 The policy reads an instruction through the frozen encoder's token states (sigma_policy/text_encoder.py), all of
-them flattened in order by ``lang_film`` (sigma_policy/network.py). For the network to follow an instruction, what
+them flattened in order by ``lang_film`` (sigma_policy/conditioning.py). For the network to follow an instruction, what
 tells two variations of a task apart (Stack's order, PickPlace's object) must stand out against what tells a
 variation's paraphrases apart, which the network has to ignore. This benchmark measures that on the flattened token
 states of every instruction of the registered tasks (sigma_data/suite.py): the mean Euclidean distance between

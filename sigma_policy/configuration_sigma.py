@@ -136,7 +136,7 @@ from sigma_data.contract import (  # the data contract: the only sigma_data modu
 from sigma_policy.compat import drop_retired
 from sigma_policy.instruction_contrast import check_contrast_weight
 from sigma_policy.lamb import LambConfig
-from sigma_policy.network import NetworkConfig
+from sigma_policy.network_config import NetworkConfig
 from sigma_policy.test_time import check_yaw_angles
 from sigma_policy.weight_average import check_ema_decay
 

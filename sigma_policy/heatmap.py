@@ -36,7 +36,14 @@ from torch import Tensor
 
 from sigma_policy.views import VIEW_AXES, project_points, tilt_slope
 
-__all__ = ["gaussian_heatmaps", "heatmap_to_cube_point", "voxel_centres"]
+__all__ = [
+    "gaussian_heatmaps",
+    "heads_at_point",
+    "heatmap_pool",
+    "heatmap_to_cube_point",
+    "predicted_uv",
+    "voxel_centres",
+]
 
 
 def gaussian_heatmaps(uv: Tensor, img_size: int, sigma: float = 1.5) -> Tensor:
@@ -209,3 +216,28 @@ def _projected_grid_point(prob: Tensor, chunk: int, refine_px: int, side_tilt_de
         line = (best_idx - cell[:, axis] * stride)[:, None] + steps * stride  # (B, S) flat voxel indices
         shifts.append(_centroid_offset(score(line), cell[:, axis], refine_px))
     return point + torch.stack(shifts, -1) * (2 / S)
+
+
+def predicted_uv(logits: Tensor, side_tilt_deg: float = 0.0) -> Tensor:
+    """Pixel coordinates ``(B, V, 2)`` of the projections of the 3D point the translation logits ``(B, V, H, W)``
+    predict (:func:`~sigma_policy.heatmap.heatmap_to_cube_point`): the views agree on one point, as the training
+    target's projections do, even where one view's own peak lies elsewhere."""
+    size = logits.shape[-1]
+    point = heatmap_to_cube_point(logits, size, side_tilt_deg=side_tilt_deg)
+    return project_points(point[:, None].to(logits.dtype), size, side_tilt_deg)[0][:, 0]
+
+
+def heads_at_point(logits: Tensor, side_tilt_deg: float, sigma_px: float) -> dict[str, Tensor]:
+    """The network's ``head_heatmap`` and ``head_uv`` arguments that run its heads at the point the translation
+    logits ``(B, V, H, W)`` predict (:func:`predicted_uv`): pooled there with a Gaussian of ``sigma_px`` pixels, as
+    training pools them at the target, and the yaw scan centred there. For a second run of the heads after the
+    logits were changed (instruction contrast, ensembles)."""
+    uv = predicted_uv(logits, side_tilt_deg)
+    return {"head_heatmap": gaussian_heatmaps(uv, logits.shape[-1], sigma=sigma_px), "head_uv": uv}
+
+
+def heatmap_pool(heatmap: Tensor, features: Tensor) -> Tensor:
+    """Per-view sum of ``features`` (B, V, C, H, W) weighted by ``heatmap`` (B, V, H, W) -> (B, V*C), view-major."""
+    b, v = heatmap.shape[:2]
+    weights = heatmap.reshape(b, v, -1).to(features.dtype)
+    return torch.einsum("bvn,bvcn->bvc", weights, features.reshape(b, v, features.shape[2], -1)).flatten(1)

@@ -36,8 +36,8 @@ from collections.abc import Callable
 import torch
 from torch import Tensor
 
-from sigma_policy.heatmap import gaussian_heatmaps
-from sigma_policy.network import NetworkOutput, heads_at_point
+from sigma_policy.heatmap import gaussian_heatmaps, heads_at_point
+from sigma_policy.network import NetworkOutput
 
 __all__ = [
     "check_contrast_weight",

@@ -1,12 +1,12 @@
-"""The two building blocks of sigma's networks: a convolution and a linear layer, each with optional GroupNorm(4) and
-LeakyReLU(0.02), initialised for the activation that follows them (:mod:`sigma_policy.network`,
-:mod:`sigma_policy.yaw_scan`)."""
+"""The building blocks of sigma's networks: a convolution and a linear layer, each with optional GroupNorm(4) and
+LeakyReLU(0.02), initialised for the activation that follows them, and the heads' dilated local encoder built from
+the convolution (:mod:`sigma_policy.network`, :mod:`sigma_policy.yaw_scan`)."""
 
 from __future__ import annotations
 
 from torch import Tensor, nn
 
-__all__ = ["LRELU_SLOPE", "ConvBlock", "DenseBlock"]
+__all__ = ["LRELU_SLOPE", "ConvBlock", "DenseBlock", "LocalEncoder"]
 
 LRELU_SLOPE = 0.02
 
@@ -67,3 +67,18 @@ class DenseBlock(nn.Module):
             shape = x.shape
             x = self.norm(x.reshape(-1, shape[-1])).reshape(shape)
         return self.act(x) if self.act is not None else x
+
+
+class LocalEncoder(nn.Sequential):
+    """Full-resolution 3x3 convolutions with growing dilation on a rendered view: (BV, C_in, H, W) ->
+    (BV, channels, H, W). With dilations (1, 2, 4, 8) each output pixel sees 31 x 31 input pixels, a 4 cm cube
+    and its surroundings in the ``small`` preset's 5.6 mm pixels; being convolutional, the same outline gives the
+    same features wherever it lies in the view."""
+
+    def __init__(self, c_in: int, channels: int, dilations: tuple[int, ...]):
+        super().__init__(
+            *(
+                ConvBlock(c_in if i == 0 else channels, channels, 3, dilation=d)
+                for i, d in enumerate(dilations)
+            )
+        )

@@ -44,9 +44,9 @@ from sigma_policy.compat import match_saved_modules
 from sigma_policy.configuration_sigma import SigmaConfig
 from sigma_policy.contrastive import contrastive_losses, instruction_ids
 from sigma_policy.ensemble import check_members, mean_probability_logits
-from sigma_policy.heatmap import gaussian_heatmaps, heatmap_to_cube_point
+from sigma_policy.heatmap import gaussian_heatmaps, heads_at_point, heatmap_to_cube_point
 from sigma_policy.instruction_contrast import contrast_instructions, instruction_negatives
-from sigma_policy.network import NetworkOutput, SigmaNetwork, heads_at_point
+from sigma_policy.network import NetworkOutput, SigmaNetwork
 from sigma_policy.observation import Cloud, batch_tasks, camera_cloud, first_frames, proprio_input, take
 from sigma_policy.pointcloud import cloud_box, crop_to_cube, cube_to_world, world_to_cube
 from sigma_policy.renderer import VirtualViewRenderer

@@ -13,143 +13,37 @@ T = ``img_size // patch_size`` patches per side, D = ``attn_dim``, L = language 
 5. Fusion (``num_fusion_layers``): Linear D -> D on [language, (proprio), queries, image tokens], then full
    self-attention. Query output -> ``fused_feat`` (delta(s_t, l)). Language tokens carry no position here, so
    fusion sees the instruction as a set of contextual token states; with ``lang_film`` (not in the paper) the
-   image tokens are first scaled and shifted by an ordered code of the tokens (:class:`LanguageFiLM`), and with
-   ``proprio_film`` by a linear map of the proprio vector (:class:`ProprioFiLM`).
+   image tokens are first scaled and shifted by an ordered code of the tokens (:class:`~sigma_policy.conditioning.LanguageFiLM`), and with
+   ``proprio_film`` by a linear map of the proprio vector (:class:`~sigma_policy.conditioning.ProprioFiLM`).
 6. Decoder: image tokens -> Linear D -> c -> per view conv k at T x T, bilinear x patch_size, conv k, concat ``d0``,
    conv 3x3 -> ``u`` (BV, ``final_dim``, H, W) -> conv 3x3 -> translation logits (B, V, H, W).
 7. Heads: [max over tokens (c*V, channel-major), heatmap-weighted sum of ``u`` (V*final_dim, view-major)] -> MLP
    -> 3 x ``num_rotation_bins`` Euler-bin logits, 2 gripper logits, 2 collision logits. Not in the paper, all
    off in ``paper``: ``local_channels`` adds a heatmap-weighted sum of full-resolution local features
-   (:class:`LocalEncoder`) and ``proprio_in_heads`` the proprio vector to the MLP's input; ``yaw_scan_px`` adds
+   (:class:`~sigma_policy.layers.LocalEncoder`) and ``proprio_in_heads`` the proprio vector to the MLP's input; ``yaw_scan_px`` adds
    rotation-equivariant scores of a turned top-view crop to the yaw logits (:class:`~sigma_policy.yaw_scan.YawScanner`).
 8. Goal branch (training, contrastive): the goal render shares steps 1-3 (own positional encoding), tokens are
    mean-pooled per view, concatenated over views and projected -> ``goal_feat`` (phi(g)).
 
 Attention is ``F.scaled_dot_product_attention`` without masks (flash / memory-efficient kernels on GPU).
-With the paper numbers (``NetworkConfig()`` and 77 x 512 CLIP tokens) the module has 38,259,614 parameters, of
+With the paper numbers (``NetworkConfig()``, sigma_policy/network_config.py, and 77 x 512 CLIP tokens) the module has 38,259,614 parameters, of
 which 2,227,201 belong to the contrastive heads (``SigmaNetwork.contrastive``) and are unused at inference.
 """
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass
-from typing import Literal
 
 import torch
 from torch import Tensor, nn
 
-from sigma_policy.heatmap import gaussian_heatmaps, heatmap_to_cube_point
-from sigma_policy.layers import LRELU_SLOPE, ConvBlock, DenseBlock
+from sigma_policy.conditioning import LanguageFiLM, ProprioFiLM
+from sigma_policy.heatmap import gaussian_heatmaps, heatmap_pool, predicted_uv
+from sigma_policy.layers import LRELU_SLOPE, ConvBlock, DenseBlock, LocalEncoder
+from sigma_policy.network_config import NetworkConfig
 from sigma_policy.transformer import TransformerLayer
 from sigma_policy.upsample import BilinearUpsample
-from sigma_policy.views import project_points, tilt_slope
 from sigma_policy.yaw_scan import YawScanner
-
-VIEW_CHANNELS = 10  # a rendered view: xyz, rgb, depth, view id, row, col (sigma_policy/renderer.py)
-
-
-@dataclass(frozen=True)
-class NetworkConfig:
-    """Architecture numbers; the defaults are the paper / released-code configuration (docs/method.md §5, §12)."""
-
-    num_views: int = 5
-    in_channels: int = VIEW_CHANNELS
-    img_size: int = 220
-    patch_size: int = 11
-    im_channels: int = 64
-    # Width of a patch token before its Linear to ``attn_dim`` (not in the paper); 0 = ``im_channels``, RVT's. The
-    # patch convolution maps patch_size² x im_channels numbers to it: at ``small``'s 8-pixel patches of 16 channels
-    # that is 1024 -> 16, where ViT's embedding keeps a patch's width (docs/learning.md "A wider patch token").
-    patch_channels: int = 0
-    attn_dim: int = 512
-    attn_heads: int = 8
-    attn_dim_head: int = 64
-    attn_dropout: float = 0.1
-    num_view_layers: int = 2
-    num_query_layers: int = 2
-    num_fusion_layers: int = 4
-    num_queries: int = 1
-    query_attention: Literal["self", "cross"] = "self"
-    decoder_kernel: int = 11
-    final_dim: int = 64
-    head_hidden_dims: tuple[int, int] = (128, 64)
-    num_rotation_bins: int = 72
-    use_contrastive: bool = True
-    projection_activation: bool = True
-    detach_heatmap_for_features: bool = True
-    use_proprio: bool = False
-    # Activation of the rotation/gripper/collision MLP: "relu" (RVT and the released code) or "leaky_relu"
-    # (slope LRELU_SLOPE, like the rest of the network: a unit pushed below zero for every input still learns).
-    head_activation: Literal["relu", "leaky_relu"] = "relu"
-    # Instruction FiLM (not in the paper): every image token entering fusion is scaled and shifted per channel by
-    # a code of the instruction's tokens taken in order (:class:`LanguageFiLM`). Instructions that differ only in
-    # word order ("red on green" / "green on red") get sentence features 0.994 apart (cosine) but distinct codes.
-    lang_film: bool = False
-    lang_film_code_dim: int = 8
-    proprio_dim: int = 3
-    # The proprio vector also enters the rotation/gripper/collision MLP directly (not only as a fusion token).
-    proprio_in_heads: bool = False
-    # Proprio FiLM (not in the paper): every image token entering fusion is also scaled and shifted per channel by
-    # a linear map of the proprio vector (:class:`ProprioFiLM`), so the decoder that draws the heatmap reads the
-    # gripper state directly, not only through attention to the proprio token; RVT-1 concatenates its proprio to
-    # every patch for the same reason (docs/method.md §13).
-    proprio_film: bool = False
-    # Local features for the heads (not in the paper; RVT-2 reads rotation at the predicted location of a zoomed
-    # stage): ``local_channels`` > 0 adds a full-resolution dilated CNN on each rendered view
-    # (:class:`LocalEncoder`), pooled per view by a heatmap (the target's in training, the same Gaussian at the
-    # predicted point at inference), so the heads see the object's outline around the keyframe position, e.g. a cube's edges.
-    local_channels: int = 0
-    local_dilations: tuple[int, ...] = (1, 2, 4, 8)
-    # Width (pixels) of the Gaussian that pools the local features: in training the target heatmap has it, at
-    # inference the same Gaussian sits at the predicted 3D point's projections, so the heads see the same pooling.
-    head_pool_sigma: float = 1.5
-    # Rotation-equivariant yaw scores (not in the paper; sigma_policy/yaw_scan.py): ``yaw_scan_px`` > 0 turns a
-    # top-view crop of this many pixels, centred at the keyframe position (the target's in training, the predicted
-    # point's at inference), to every yaw bin, scores each with one CNN of ``yaw_scan_channels`` channels and adds
-    # the scores to the yaw logits.
-    yaw_scan_px: int = 0
-    yaw_scan_channels: int = 16
-    # Side views tilted down by this angle (not in the paper; sigma_policy/views.py), so they see over a container's
-    # rim: the network only needs it to back-project its own heatmaps at inference (the local features' pooling and
-    # the yaw scan's crop centre). 0 = RVT's horizontal side views.
-    side_tilt_deg: float = 0.0
-    logit_scale_init: float = math.log(1 / 0.07)
-    channels_last: bool = False  # NHWC conv activations: the layout tensor-core convolutions want on GPUs
-
-    def __post_init__(self) -> None:
-        if self.img_size % self.patch_size:
-            raise ValueError(f"img_size {self.img_size} must be a multiple of patch_size {self.patch_size}")
-        if self.query_attention not in ("self", "cross"):
-            raise ValueError(f"query_attention must be 'self' or 'cross', got {self.query_attention!r}")
-        if self.head_activation not in ("relu", "leaky_relu"):
-            raise ValueError(f"head_activation must be 'relu' or 'leaky_relu', got {self.head_activation!r}")
-        if self.num_queries < 1:
-            raise ValueError(f"num_queries must be >= 1, got {self.num_queries}")
-        tilt_slope(self.side_tilt_deg)  # 0 <= angle < 90
-        if self.local_channels < 0 or (self.local_channels and not self.local_dilations):
-            raise ValueError("local_channels must be >= 0, with at least one dilation when > 0")
-        if self.yaw_scan_px < 0 or (self.yaw_scan_px and (self.yaw_scan_px % 2 or self.yaw_scan_px < 8)):
-            raise ValueError(f"yaw_scan_px must be 0 (off) or an even number >= 8, got {self.yaw_scan_px}")
-        if self.yaw_scan_px and self.num_rotation_bins % 2:
-            raise ValueError(
-                f"yaw_scan_px needs an even num_rotation_bins (half a turn), got {self.num_rotation_bins}"
-            )
-        if self.im_channels % 4 or self.attn_dim % 4 or self.patch_channels % 4 or self.patch_channels < 0:
-            raise ValueError(
-                "im_channels, patch_channels and attn_dim must be multiples of 4 (GroupNorm(4, .)), "
-                f"patch_channels 0 (im_channels) or more; got {self.im_channels}, {self.patch_channels}, "
-                f"{self.attn_dim}"
-            )
-
-    @property
-    def patch_width(self) -> int:
-        """Channels of a patch token before the Linear to ``attn_dim``: ``patch_channels``, else ``im_channels``."""
-        return self.patch_channels or self.im_channels
-
-    @property
-    def tokens_per_side(self) -> int:
-        return self.img_size // self.patch_size
 
 
 def _stack(cfg: NetworkConfig, n: int, cross: bool = False) -> nn.ModuleList:
@@ -157,83 +51,6 @@ def _stack(cfg: NetworkConfig, n: int, cross: bool = False) -> nn.ModuleList:
         TransformerLayer(cfg.attn_dim, cfg.attn_heads, cfg.attn_dim_head, cfg.attn_dropout, cross)
         for _ in range(n)
     )
-
-
-class LanguageFiLM(nn.Module):
-    """Instruction -> per-channel scale and shift of image tokens: ``img * (1 + gamma) + beta``.
-
-    Each token state (L, D_tok) is projected to ``code_dim`` numbers and the L codes are concatenated in order, so
-    the result depends on which word sits where (a mean over tokens would not tell the stacking orders apart).
-    """
-
-    def __init__(self, token_dim: int, length: int, dim: int, code_dim: int):
-        super().__init__()
-        self.length = length
-        self.token_proj = DenseBlock(token_dim, code_dim)
-        self.out = DenseBlock(length * code_dim, 2 * dim, act=False)
-
-    def forward(self, lang_tokens: Tensor, img: Tensor) -> Tensor:
-        if lang_tokens.shape[1] != self.length:
-            raise ValueError(
-                f"LanguageFiLM expects {self.length} language tokens, got {lang_tokens.shape[1]}"
-            )
-        gamma, beta = self.out(self.token_proj(lang_tokens).flatten(1)).unsqueeze(1).chunk(2, dim=-1)
-        return img * (1 + gamma) + beta
-
-
-class ProprioFiLM(nn.Module):
-    """Proprio vector (B, P) -> per-channel scale and shift of image tokens: ``img * (1 + gamma) + beta``. Zero
-    initialised, so it starts as the identity and the proprio token's route is unchanged at step 0."""
-
-    def __init__(self, proprio_dim: int, dim: int):
-        super().__init__()
-        self.out = nn.Linear(proprio_dim, 2 * dim)
-        nn.init.zeros_(self.out.weight)
-        nn.init.zeros_(self.out.bias)
-
-    def forward(self, proprio: Tensor, img: Tensor) -> Tensor:
-        gamma, beta = self.out(proprio.to(img.dtype)).unsqueeze(1).chunk(2, dim=-1)
-        return img * (1 + gamma) + beta
-
-
-class LocalEncoder(nn.Sequential):
-    """Full-resolution 3x3 convolutions with growing dilation on a rendered view: (BV, C_in, H, W) ->
-    (BV, channels, H, W). With dilations (1, 2, 4, 8) each output pixel sees 31 x 31 input pixels, a 4 cm cube
-    and its surroundings in the ``small`` preset's 5.6 mm pixels; being convolutional, the same outline gives the
-    same features wherever it lies in the view."""
-
-    def __init__(self, c_in: int, channels: int, dilations: tuple[int, ...]):
-        super().__init__(
-            *(
-                ConvBlock(c_in if i == 0 else channels, channels, 3, dilation=d)
-                for i, d in enumerate(dilations)
-            )
-        )
-
-
-def predicted_uv(logits: Tensor, side_tilt_deg: float = 0.0) -> Tensor:
-    """Pixel coordinates ``(B, V, 2)`` of the projections of the 3D point the translation logits ``(B, V, H, W)``
-    predict (:func:`~sigma_policy.heatmap.heatmap_to_cube_point`): the views agree on one point, as the training
-    target's projections do, even where one view's own peak lies elsewhere."""
-    size = logits.shape[-1]
-    point = heatmap_to_cube_point(logits, size, side_tilt_deg=side_tilt_deg)
-    return project_points(point[:, None].to(logits.dtype), size, side_tilt_deg)[0][:, 0]
-
-
-def heads_at_point(logits: Tensor, side_tilt_deg: float, sigma_px: float) -> dict[str, Tensor]:
-    """The network's ``head_heatmap`` and ``head_uv`` arguments that run its heads at the point the translation
-    logits ``(B, V, H, W)`` predict (:func:`predicted_uv`): pooled there with a Gaussian of ``sigma_px`` pixels, as
-    training pools them at the target, and the yaw scan centred there. For a second run of the heads after the
-    logits were changed (instruction contrast, ensembles)."""
-    uv = predicted_uv(logits, side_tilt_deg)
-    return {"head_heatmap": gaussian_heatmaps(uv, logits.shape[-1], sigma=sigma_px), "head_uv": uv}
-
-
-def heatmap_pool(heatmap: Tensor, features: Tensor) -> Tensor:
-    """Per-view sum of ``features`` (B, V, C, H, W) weighted by ``heatmap`` (B, V, H, W) -> (B, V*C), view-major."""
-    b, v = heatmap.shape[:2]
-    weights = heatmap.reshape(b, v, -1).to(features.dtype)
-    return torch.einsum("bvn,bvcn->bvc", weights, features.reshape(b, v, features.shape[2], -1)).flatten(1)
 
 
 class ContrastiveHeads(nn.Module):

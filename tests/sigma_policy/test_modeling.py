@@ -793,8 +793,8 @@ def test_instruction_contrast_asks_the_tasks_other_instructions_and_runs_the_hea
     """``instruction_contrast``: the network runs once per instruction of the task, the action's point is the argmax of
     the contrasted heatmaps (returned as the prediction's heatmaps), and a last run pools the heads there; an
     instruction alone in its task runs once, as without the option."""
+    from sigma_policy.heatmap import predicted_uv
     from sigma_policy.instruction_contrast import contrasted_logits
-    from sigma_policy.network import predicted_uv
 
     cfg, policy, pre, _, _ = build(tiny_root, instruction_contrast=0.5, yaw_scan_px=8)
     policy.eval()

@@ -9,7 +9,8 @@ import torch
 import torch.nn.functional as F
 
 from sigma_policy.configuration_sigma import SigmaConfig
-from sigma_policy.network import NetworkConfig, SigmaNetwork
+from sigma_policy.network import SigmaNetwork
+from sigma_policy.network_config import NetworkConfig
 from sigma_policy.upsample import BilinearUpsample
 
 SMALL = NetworkConfig(
@@ -246,7 +247,8 @@ def test_local_features_see_an_outline_wherever_it_lies_and_are_pooled_where_the
     """The heads' local encoder is convolutional: the same square drawn at two places of a view gives the same
     pooled features when the pooling heatmap follows it, and other features when the square is turned; its
     weights get gradients and a given heatmap (the target's, in training) replaces the predicted one."""
-    from sigma_policy.network import LocalEncoder, heatmap_pool
+    from sigma_policy.heatmap import heatmap_pool
+    from sigma_policy.layers import LocalEncoder
 
     enc = LocalEncoder(1, 8, (1, 2, 4)).eval()  # receptive field 15 px
     size = 48
