@@ -1,26 +1,12 @@
 """Configuration of the Σ-agent policy, registered with LeRobot as ``--policy.type=sigma``.
 
-Presets (``--policy.preset=paper|small|suite|gpu``). Every architecture / schedule field left unset (``None``) is filled
-from the preset in ``__post_init__``; a field given explicitly (CLI or ``config.json``) always wins.
+Presets (``--policy.preset=paper|small|suite|gpu``): the ``PRESETS`` table below, set side by side in
+docs/method.md §12. Every architecture / schedule field left unset (``None``) is filled from the preset in
+``__post_init__``; a field given explicitly (CLI or ``config.json``) always wins.
 
-| field | paper (docs/method.md §5, §10) | small (2 CPU cores, minutes) |
-|---|---|---|
-| img_size / patch_size | 220 / 11 (20x20 tokens per view) | 64 / 8 (8x8 tokens per view) |
-| im_channels / final_dim | 64 / 64 | 16 / 16 |
-| attn_dim, heads x dim_head | 512, 8 x 64 | 128, 4 x 32 |
-| view / query / fusion layers | 2 / 2 / 4 | 1 / 1 / 2 |
-| decoder_kernel | 11 | 3 |
-| attn_dropout | 0.1 | 0.0 |
-| use_proprio | False (Σ code) | True (see choice 6) |
-| proprio_position | False | True (grip-site position in the box joins the proprio token; see choice 6) |
-| proprio_orientation, proprio_in_heads | False, False | True, True (grip-site orientation in the token; the token's input also feeds the heads) |
-| proprio_film | False | True (the proprio vector scales and shifts every image token; see choice 6; ``suite`` and ``gpu``: False) |
-| local_channels | 0 | 16 (the heads read full-resolution local features at the keyframe position) |
-| aug_translation_range, aug_yaw_range_deg | 0.125 m, 45° | 0, 45° (see "The small recipe") |
-| optimizer_lr, warm-up, decay steps | 9.6e-4, 2000, 25000 | 1e-2, 20, 2000 |
-| optimizer_exempt_small | False | True (biases, norms, query tokens skip LAMB's trust ratio) |
-| head_activation | relu (RVT) | leaky_relu (see "The small recipe") |
-| per_task_bounds, yaw_scan_px | False, 0 | False, 0 |
+``paper`` is the paper's network and schedule (docs/method.md §5, §10). ``small`` is the network for 2 CPU cores and minutes: 64² views of 8 × 8 tokens, 128-d
+attention in 4 layers, the proprio token (and its FiLM), full-resolution local features for the heads, LeakyReLU
+heads, lr 1e-2 with biases, norms and query tokens exempt from LAMB's trust ratio, and yaw augmentation only.
 
 ``suite`` is ``small`` for several tasks at once: ``per_task_bounds=True`` (each task rendered in its own box),
 ``yaw_scan_px=24`` (the rotation-equivariant yaw scan), lr 3e-3 and a 6000-step decay. It is the suite benchmark's
@@ -49,56 +35,12 @@ episodes at the same budget. The paper preset keeps RVT's augmentation and ReLU 
 ``paper`` has 38.26 M parameters with the contrastive heads and 36.03 M at inference (with 77 x 512 CLIP tokens;
 the default MiniLM text encoder's 384-d tokens make it 0.34 % smaller).
 
-Paper-vs-code discrepancies (docs/method.md §13), each a field; default and reason:
-
-1. Queries — ``num_queries=1``, ``query_attention="self"`` (released code: one query token, full self-attention
-   over [query, image tokens]). Paper: 5 queries with cross-attention (``num_queries=5, query_attention="cross"``).
-   Default = code, because the published success rates and the 38.26 M parameter count come from it.
-2. Fusion — paper and code agree (self-attention over language, query and image tokens after a Linear); no field.
-3. λ — ``bc_lambda=0.5``: total = λ·BC + (1−λ)·CL (paper). The code sums BC + CL (= 2x this, to which LAMB's
-   trust ratio is invariant). ``use_contrastive=false`` (or ``bc_lambda=1``) is the RVT-style baseline.
-4. Negatives — ``mask_same_instruction=True``: in the state↔language term, batch entries with the *same
-   instruction* are removed from the negatives (paper: "negatives from other tasks"; their language feature is
-   identical to the positive, so they are false negatives). The code masks nothing (``False``). The goal term
-   never masks: two states with the same instruction still have different goals. ``mask_same_task=True`` (a sigma
-   option, off by default) follows the paper's wording to the letter: it also masks the other variations of the
-   positive's task (``instruction_tasks``, from the dataset's episode records). A start frame of PickPlace is the
-   same scene under four instructions, and phi(s_t) is computed before the instruction enters, so those negatives
-   ask the image encoder for something it cannot see (docs/learning.md).
-5. Goal — the next keyframe (code and paper's main text): fixed by the keyframe dataset via
-   ``observation_delta_indices=[0, 1]``; no field.
-6. Proprio — ``use_proprio``: ``False`` in ``paper`` (Σ code); ``True`` adds one token from ``observation.state``
-   [gripper_open, finger_q1, finger_q2] to the fusion sequence (a sigma variant, not RVT-1's channel concat).
-   ``small`` turns it on: its 64² virtual views barely resolve the fingers, so without it the policy cannot
-   tell "about to grasp" from "just grasped" and repeats the grasp keyframe (seen in the first demo runs;
-   with proprio and the task's scene box, Lift from 12 demos and 400 steps succeeds in 7 of 10 episodes).
-   ``proprio_position`` adds the grip site's position in the scene box ([-1, 1], moved by the augmentation):
-   whether to close depends on where the gripper is, and with the 36 cm box the heads missed that in one training
-   seed of two (``docs/learning.md``). ``proprio_film`` (``small`` on) also scales and shifts every image token
-   entering fusion by the proprio vector, as RVT-1 gives every patch its proprio: through the token alone, two
-   training seeds of three ignored the gripper state when placing the heatmap and mistook the grasp for the lift
-   (48/90 twice, 82/90); with the FiLM all three read it (61/90, 86/90, 84/90; ``docs/learning.md``).
-7. Temperature — learnable, ``logit_scale_init=log(1/0.07)``, ``logit_scale_max=None`` (code: unclamped;
-   CLIP clamps the scale at 100).
-8. Projection heads — ``projection_activation=True`` (code: Linear + LeakyReLU before L2 normalisation);
-   ``False`` = the paper's purely linear projection.
-9. Hyper-parameters — paper: batch 96, lr 9.6e-4, 25K steps, 2K warm-up (``paper`` preset). The code's
-   yaml uses 1e-4 x global batch. Scale ``optimizer_lr`` with the global batch size if it differs from 96.
-10./11. Replay start frames and the collision label are properties of the dataset, not the policy.
-12. Eval centring — ``place_with_mean_at_eval=False``: evaluation uses the same fixed scene box as training
-    (RVT-2 behaviour). ``True`` reproduces the RVT-1/Σ eval hack (centre and scale on the cloud's bounding box).
-13./14. Heatmap pixel convention — sigma's renderer and heatmap modules use exact pixel alignment
-    (pixel j covers [j, j+1)) for both labels and back-projection, so the RVT half-pixel offset and the
-    zero-weighted last grid slice do not exist here; no field.
-15./17. CLIP weights / precision — replaced by ``text_encoder`` (frozen, cached per instruction); no field.
-16. ``detach_heatmap_for_features=True`` (code): no gradient from the rotation/gripper/collision losses flows
-    into the translation logits through the heatmap-weighted features.
-18. Centred goal features — ``contrastive_center`` (a sigma option; False in every preset, as in paper and code):
-    the goal term's q and g minus their batch mean before the L2 normalisation (sigma_policy/contrastive.py). On
-    the tiny test scenes it takes the goal term from a stall near log 4 to about 0 in 150 steps; on Lift + Stack
-    at 1500 CPU steps centring all four features changed no closed-loop success (48/90 against 48/90, single
-    runs; docs/learning.md "Centred contrastive features"), nor did the goal term alone on the five tasks (60/200
-    against 60 and 62; "Centred goal features on the five tasks"), so the presets keep the paper's form.
+Where the paper and the released code disagree, each choice that matters is a field, and docs/method.md §13.1 numbers
+them with sigma's default and the reason: the queries (``num_queries``, ``query_attention``), λ (``bc_lambda``),
+the negatives (``mask_same_instruction``, ``mask_same_task``), proprioception (``use_proprio``, ``proprio_*``), the
+temperature (``logit_scale_init``, ``logit_scale_max``), the projection heads (``projection_activation``), the
+evaluation box (``place_with_mean_at_eval``) and the heatmap's gradient (``detach_heatmap_for_features``). sigma's
+own additions, each off in ``paper``, are in §13.2.
 
 Inputs per camera ``<cam>`` in ``cameras`` (all cameras that have them when ``cameras`` is empty):
 ``observation.images.<cam>`` (RGB in [0,1]), ``observation.images.<cam>_depth`` (depth, unit ``depth_unit``),
@@ -340,7 +282,7 @@ class SigmaConfig(PreTrainedConfig):
     # ---- contrastive IL
     use_contrastive: bool = True
     # Subtract the goal term's features' batch mean before the L2 normalisation (sigma_policy/contrastive.py; not
-    # in the paper; discrepancy 18 above). None = from preset (every preset False).
+    # in the paper; docs/method.md §13.2). None = from preset (every preset False).
     contrastive_center: bool | None = None
 
     # ---- inputs
