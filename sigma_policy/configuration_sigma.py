@@ -4,9 +4,10 @@ Presets (``--policy.preset=paper|small|suite|gpu``): the ``PRESETS`` table below
 docs/method.md §12. Every architecture / schedule field left unset (``None``) is filled from the preset in
 ``__post_init__``; a field given explicitly (CLI or ``config.json``) always wins.
 
-``paper`` is the paper's network and schedule (docs/method.md §5, §10). ``small`` is the network for 2 CPU cores and minutes: 64² views of 8 × 8 tokens, 128-d
-attention in 4 layers, the proprio token (and its FiLM), full-resolution local features for the heads, LeakyReLU
-heads, lr 1e-2 with biases, norms and query tokens exempt from LAMB's trust ratio, and yaw augmentation only.
+``paper`` is the paper's network and schedule (docs/method.md §5, §10). ``small`` is the network for 2 CPU cores
+and minutes: 64² views of 8 × 8 tokens, 128-d attention in 4 layers, the proprio token (and its FiLM),
+full-resolution local features for the heads, LeakyReLU heads, lr 1e-2 with biases, norms and query tokens exempt
+from LAMB's trust ratio, and yaw augmentation only.
 
 ``suite`` is ``small`` for several tasks at once: ``per_task_bounds=True`` (each task rendered in its own box),
 ``yaw_scan_px=24`` (the rotation-equivariant yaw scan), lr 3e-3 and a 6000-step decay. It is the suite benchmark's

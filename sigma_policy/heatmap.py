@@ -1,4 +1,6 @@
-"""Translation heatmaps: Gaussian targets per view and the factorised heatmap -> 3D point back-projection.
+"""Translation heatmaps: Gaussian targets per view, the factorised heatmap -> 3D point back-projection, and the
+heads' reads at a point: features pooled under a heatmap (:func:`heatmap_pool`) and the heads' inputs at the
+predicted point (:func:`predicted_uv`, :func:`heads_at_point`).
 
 Pixel convention: the renderer's exact alignment (``sigma_policy.renderer``): continuous coordinates ``(u, v)``,
 pixel ``(row i, col j)`` centred at ``(j + 0.5, i + 0.5)``.
@@ -220,7 +222,7 @@ def _projected_grid_point(prob: Tensor, chunk: int, refine_px: int, side_tilt_de
 
 def predicted_uv(logits: Tensor, side_tilt_deg: float = 0.0) -> Tensor:
     """Pixel coordinates ``(B, V, 2)`` of the projections of the 3D point the translation logits ``(B, V, H, W)``
-    predict (:func:`~sigma_policy.heatmap.heatmap_to_cube_point`): the views agree on one point, as the training
+    predict (:func:`heatmap_to_cube_point`): the views agree on one point, as the training
     target's projections do, even where one view's own peak lies elsewhere."""
     size = logits.shape[-1]
     point = heatmap_to_cube_point(logits, size, side_tilt_deg=side_tilt_deg)

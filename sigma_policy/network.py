@@ -13,21 +13,22 @@ T = ``img_size // patch_size`` patches per side, D = ``attn_dim``, L = language 
 5. Fusion (``num_fusion_layers``): Linear D -> D on [language, (proprio), queries, image tokens], then full
    self-attention. Query output -> ``fused_feat`` (delta(s_t, l)). Language tokens carry no position here, so
    fusion sees the instruction as a set of contextual token states; with ``lang_film`` (not in the paper) the
-   image tokens are first scaled and shifted by an ordered code of the tokens (:class:`~sigma_policy.conditioning.LanguageFiLM`), and with
-   ``proprio_film`` by a linear map of the proprio vector (:class:`~sigma_policy.conditioning.ProprioFiLM`).
+   image tokens are first scaled and shifted by an ordered code of the tokens, and with ``proprio_film`` by a
+   linear map of the proprio vector (:mod:`sigma_policy.conditioning`).
 6. Decoder: image tokens -> Linear D -> c -> per view conv k at T x T, bilinear x patch_size, conv k, concat ``d0``,
    conv 3x3 -> ``u`` (BV, ``final_dim``, H, W) -> conv 3x3 -> translation logits (B, V, H, W).
 7. Heads: [max over tokens (c*V, channel-major), heatmap-weighted sum of ``u`` (V*final_dim, view-major)] -> MLP
    -> 3 x ``num_rotation_bins`` Euler-bin logits, 2 gripper logits, 2 collision logits. Not in the paper, all
    off in ``paper``: ``local_channels`` adds a heatmap-weighted sum of full-resolution local features
-   (:class:`~sigma_policy.layers.LocalEncoder`) and ``proprio_in_heads`` the proprio vector to the MLP's input; ``yaw_scan_px`` adds
+   (:class:`~sigma_policy.layers.LocalEncoder`) and ``proprio_in_heads`` the proprio vector to the MLP's input;
+   ``yaw_scan_px`` adds
    rotation-equivariant scores of a turned top-view crop to the yaw logits (:class:`~sigma_policy.yaw_scan.YawScanner`).
 8. Goal branch (training, contrastive): the goal render shares steps 1-3 (own positional encoding), tokens are
    mean-pooled per view, concatenated over views and projected -> ``goal_feat`` (phi(g)).
 
 Attention is ``F.scaled_dot_product_attention`` without masks (flash / memory-efficient kernels on GPU).
-With the paper numbers (``NetworkConfig()``, sigma_policy/network_config.py, and 77 x 512 CLIP tokens) the module has 38,259,614 parameters, of
-which 2,227,201 belong to the contrastive heads (``SigmaNetwork.contrastive``) and are unused at inference.
+With the paper numbers (``NetworkConfig()``, sigma_policy/network_config.py, and 77 x 512 CLIP tokens) the module
+has 38,259,614 parameters, of which 2,227,201 belong to the contrastive heads (``SigmaNetwork.contrastive``) and are unused at inference.
 """
 
 from __future__ import annotations

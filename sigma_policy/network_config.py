@@ -49,22 +49,23 @@ class NetworkConfig:
     # (slope LRELU_SLOPE, like the rest of the network: a unit pushed below zero for every input still learns).
     head_activation: Literal["relu", "leaky_relu"] = "relu"
     # Instruction FiLM (not in the paper): every image token entering fusion is scaled and shifted per channel by
-    # a code of the instruction's tokens taken in order (:class:`~sigma_policy.conditioning.LanguageFiLM`). Instructions that differ only in
-    # word order ("red on green" / "green on red") get sentence features 0.994 apart (cosine) but distinct codes.
+    # a code of the instruction's tokens taken in order (:class:`~sigma_policy.conditioning.LanguageFiLM`).
+    # Instructions that differ only in word order ("red on green" / "green on red") get sentence features 0.994 apart (cosine) but distinct codes.
     lang_film: bool = False
     lang_film_code_dim: int = 8
     proprio_dim: int = 3
     # The proprio vector also enters the rotation/gripper/collision MLP directly (not only as a fusion token).
     proprio_in_heads: bool = False
     # Proprio FiLM (not in the paper): every image token entering fusion is also scaled and shifted per channel by
-    # a linear map of the proprio vector (:class:`~sigma_policy.conditioning.ProprioFiLM`), so the decoder that draws the heatmap reads the
-    # gripper state directly, not only through attention to the proprio token; RVT-1 concatenates its proprio to
+    # a linear map of the proprio vector (:class:`~sigma_policy.conditioning.ProprioFiLM`), so the decoder that
+    # draws the heatmap reads the gripper state directly, not only through attention to the proprio token; RVT-1 concatenates its proprio to
     # every patch for the same reason (docs/method.md §13).
     proprio_film: bool = False
     # Local features for the heads (not in the paper; RVT-2 reads rotation at the predicted location of a zoomed
     # stage): ``local_channels`` > 0 adds a full-resolution dilated CNN on each rendered view
-    # (:class:`~sigma_policy.layers.LocalEncoder`), pooled per view by a heatmap (the target's in training, the same Gaussian at the
-    # predicted point at inference), so the heads see the object's outline around the keyframe position, e.g. a cube's edges.
+    # (:class:`~sigma_policy.layers.LocalEncoder`), pooled per view by a heatmap (the target's in training, the
+    # same Gaussian at the predicted point at inference), so the heads see the object's outline around the keyframe
+    # position, e.g. a cube's edges.
     local_channels: int = 0
     local_dilations: tuple[int, ...] = (1, 2, 4, 8)
     # Width (pixels) of the Gaussian that pools the local features: in training the target heatmap has it, at
