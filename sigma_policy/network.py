@@ -21,14 +21,15 @@ T = ``img_size // patch_size`` patches per side, D = ``attn_dim``, L = language 
    -> 3 x ``num_rotation_bins`` Euler-bin logits, 2 gripper logits, 2 collision logits. Not in the paper, all
    off in ``paper``: ``local_channels`` adds a heatmap-weighted sum of full-resolution local features
    (:class:`~sigma_policy.layers.LocalEncoder`) and ``proprio_in_heads`` the proprio vector to the MLP's input;
-   ``yaw_scan_px`` adds
-   rotation-equivariant scores of a turned top-view crop to the yaw logits (:class:`~sigma_policy.yaw_scan.YawScanner`).
+   ``yaw_scan_px`` adds rotation-equivariant scores of a turned top-view crop to the yaw logits
+   (:class:`~sigma_policy.yaw_scan.YawScanner`).
 8. Goal branch (training, contrastive): the goal render shares steps 1-3 (own positional encoding), tokens are
    mean-pooled per view, concatenated over views and projected -> ``goal_feat`` (phi(g)).
 
 Attention is ``F.scaled_dot_product_attention`` without masks (flash / memory-efficient kernels on GPU).
 With the paper numbers (``NetworkConfig()``, sigma_policy/network_config.py, and 77 x 512 CLIP tokens) the module
-has 38,259,614 parameters, of which 2,227,201 belong to the contrastive heads (``SigmaNetwork.contrastive``) and are unused at inference.
+has 38,259,614 parameters, of which 2,227,201 belong to the contrastive heads (``SigmaNetwork.contrastive``) and
+are unused at inference.
 """
 
 from __future__ import annotations

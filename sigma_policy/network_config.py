@@ -50,7 +50,8 @@ class NetworkConfig:
     head_activation: Literal["relu", "leaky_relu"] = "relu"
     # Instruction FiLM (not in the paper): every image token entering fusion is scaled and shifted per channel by
     # a code of the instruction's tokens taken in order (:class:`~sigma_policy.conditioning.LanguageFiLM`).
-    # Instructions that differ only in word order ("red on green" / "green on red") get sentence features 0.994 apart (cosine) but distinct codes.
+    # Instructions that differ only in word order ("red on green" / "green on red") get sentence features 0.994
+    # apart (cosine) but distinct codes.
     lang_film: bool = False
     lang_film_code_dim: int = 8
     proprio_dim: int = 3
@@ -58,8 +59,8 @@ class NetworkConfig:
     proprio_in_heads: bool = False
     # Proprio FiLM (not in the paper): every image token entering fusion is also scaled and shifted per channel by
     # a linear map of the proprio vector (:class:`~sigma_policy.conditioning.ProprioFiLM`), so the decoder that
-    # draws the heatmap reads the gripper state directly, not only through attention to the proprio token; RVT-1 concatenates its proprio to
-    # every patch for the same reason (docs/method.md §13).
+    # draws the heatmap reads the gripper state directly, not only through attention to the proprio token; RVT-1
+    # concatenates its proprio to every patch for the same reason (docs/method.md §13).
     proprio_film: bool = False
     # Local features for the heads (not in the paper; RVT-2 reads rotation at the predicted location of a zoomed
     # stage): ``local_channels`` > 0 adds a full-resolution dilated CNN on each rendered view
