@@ -23,7 +23,8 @@ checkpoints with test-time options.
 
     python scripts/device_kit.py --command pack
     # the device call, twice in a row if the first returns "still running": carry ['.device'], command
-    #   bash scripts/device_suite.sh --wait 560 -- --preset gpu --tasks '[lift,stack,pick_place,nut_assembly,door]'
+    #   bash scripts/device_suite.sh --wait 560 -- --preset gpu --episodes 30 \
+    #     --tasks '[lift,stack,pick_place,nut_assembly,door]'
     python scripts/device_kit.py --command unpack --parts /work/.device/<call>/files --output_dir outputs/suite_h200
 """
 

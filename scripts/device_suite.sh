@@ -2,9 +2,11 @@
 # The suite benchmark on the lent GPU machine, which has no network (docs/gpu.md "A GPU lease in one call").
 #
 # Run there from the checkout's root, with `.device` carried (made here by `python scripts/device_kit.py`):
-#   bash scripts/device_suite.sh --wait 560 -- --preset gpu --tasks '[lift,stack,pick_place,nut_assembly,door]'
+#   bash scripts/device_suite.sh --wait 560 -- --preset gpu --episodes 30 \
+#     --tasks '[lift,stack,pick_place,nut_assembly,door]'
 # and, made at once after it, the lease's last call (see --final below):
-#   bash scripts/device_suite.sh --final --wait 200 -- --preset gpu --tasks '[lift,stack,pick_place,nut_assembly,door]'
+#   bash scripts/device_suite.sh --final --wait 200 -- --preset gpu --episodes 30 \
+#     --tasks '[lift,stack,pick_place,nut_assembly,door]'
 # Several runs share the card (and the one collection) when their bench_suite arguments are separated by `---`:
 #   bash scripts/device_suite.sh --wait 560 -- --preset gpu --tasks '[...]' --- --preset gpu --tasks '[...]' --seeds '[1]'
 #

@@ -45,7 +45,7 @@ def test_markdown_has_a_column_per_seed_and_pooled_rows():
     assert "| 0 | 0.40 | 0.40 | 90% | 10.0 | 100% | **35/40" in text
     assert "dropped 5" in text and "dropped 9" in text and "| 60 | 15 |" in text
     assert "`--policy.preset=suite` `--policy.use_cpu_bf16_autocast=true`" in text
-    assert "decay over 6000 steps" in text  # the schedule stretched over the whole run by default
+    assert "decay over 7500 steps" in text  # the schedule stretched over the whole run by default
     short = markdown(SuiteBenchConfig(tasks=["lift"], schedule_steps=2000), results[:1])
     assert "decay over 2000 steps" in short
 
@@ -53,14 +53,14 @@ def test_markdown_has_a_column_per_seed_and_pooled_rows():
 def test_learning_rate_option_reaches_lerobot_train_and_the_table():
     lift = [_result(0, {"lift:lift_cube": 20})]
     suite = SuiteBenchConfig(tasks=["lift"])
-    assert suite.schedule_args == ["--policy.scheduler_decay_steps=6000"]  # the suite preset's lr
+    assert suite.schedule_args == ["--policy.scheduler_decay_steps=7500"]  # the suite preset's lr
     assert "peak learning rate 0.003" in markdown(suite, lift)
     small = SuiteBenchConfig(tasks=["lift"], preset="small")  # the small preset's own 1e-2
-    assert small.schedule_args == ["--policy.scheduler_decay_steps=6000"]
+    assert small.schedule_args == ["--policy.scheduler_decay_steps=7500"]
     assert "peak learning rate 0.01" in markdown(small, lift) and "`--policy.preset=small`" in markdown(
         small, lift
     )
-    assert small.run_dir(0).name == "seed0_decay6000_lr0.01_small"  # a preset other than suite is named
+    assert small.run_dir(0).name == "seed0_decay7500_lr0.01_small"  # a preset other than suite is named
     wide = SuiteBenchConfig(tasks=["lift"], batch_size=32, steps=3000)
     assert wide.run_dir(0).name == "seed0_decay3000_lr0.003_batch32"  # not the batch-8 run's directory
     gpu = SuiteBenchConfig(tasks=["lift"], preset="gpu", batch_size=64, steps=3000)
@@ -68,19 +68,21 @@ def test_learning_rate_option_reaches_lerobot_train_and_the_table():
     assert gpu.run_dir(0).name == "seed0_decay3000_lr0.003_batch64_gpu"
     # Runs that differ only in their policy options share a collection, not a directory:
     film = SuiteBenchConfig(tasks=["lift"], policy_args=[*SUITE_ARGS, "--policy.proprio_film=true"])
-    assert film.run_dir(0).name == "seed0_decay6000_lr0.003_proprio_film-true"
+    assert film.run_dir(0).name == "seed0_decay7500_lr0.003_proprio_film-true"
     boxed = SuiteBenchConfig(tasks=["lift"], policy_args=["--policy.scene_bounds=[-0.2,0.2]"])
     assert (
-        boxed.run_dir(0).name == "seed0_decay6000_lr0.003_scene_bounds--0.2,0.2_without-use_cpu_bf16_autocast"
+        boxed.run_dir(0).name == "seed0_decay7500_lr0.003_scene_bounds--0.2,0.2_without-use_cpu_bf16_autocast"
     )
     tuned = SuiteBenchConfig(tasks=["lift"], lr=1e-3)
-    assert tuned.schedule_args == ["--policy.scheduler_decay_steps=6000", "--policy.optimizer_lr=0.001"]
+    assert tuned.schedule_args == ["--policy.scheduler_decay_steps=7500", "--policy.optimizer_lr=0.001"]
 
 
 def test_the_budget_defaults_to_the_presets():
     suite = draccus.parse(SuiteBenchConfig, args=[])
-    assert (suite.steps, suite.batch_size, suite.decay_steps) == (6000, 8, 6000)
-    gpu = draccus.parse(SuiteBenchConfig, args=["--preset", "gpu"])  # what docs/gpu.md measured, not 6000 × 8
+    assert (suite.steps, suite.batch_size, suite.decay_steps) == (7500, 8, 7500)
+    # the best five-task CPU recipe (docs/learning.md): every task, 50 demonstrations per variation
+    assert (suite.tasks, suite.episodes) == (["lift", "stack", "pick_place", "nut_assembly", "door"], 50)
+    gpu = draccus.parse(SuiteBenchConfig, args=["--preset", "gpu"])  # what docs/gpu.md measured, not 7500 × 8
     assert (gpu.steps, gpu.batch_size, gpu.decay_steps) == (3000, 64, 3000)
     assert gpu.run_dir(0).name == "seed0_decay3000_lr0.003_batch64_gpu"
     assert "--batch_size=64" in gpu.train_run(0, gpu.output_dir).command()
@@ -93,7 +95,7 @@ def test_device_option_reaches_lerobot_train_and_the_table(tmp_path):
     command = gpu.train_run(1, tmp_path / "keyframe").command()
     assert "--policy.device=cuda" in command and "--seed=1" in command
     assert "--num_workers=4" in command  # a GPU run reads its batches in loader workers
-    assert f"--output_dir={tmp_path / 'runs' / 'seed1_decay6000_lr0.003' / 'train'}" in command
+    assert f"--output_dir={tmp_path / 'runs' / 'seed1_decay7500_lr0.003' / 'train'}" in command
     assert "--policy.preset=suite" in command and "--policy.use_cpu_bf16_autocast=true" in command
     assert ", CUDA; closed loop" in markdown(gpu, [_result(1, {"lift:lift_cube": 20})])
     scored_here = _result(1, {"lift:lift_cube": 20}) | {"trained_on": "cuda"}  # trained there, reused here
@@ -191,7 +193,7 @@ def test_the_seeds_scored_as_one_ensemble_get_a_column_and_a_row():
     assert "| stack:red_on_green | 6/20 (10–90%) | 10/20 (10–90%) | 12/20 (10–90%) |" in text
     assert "| ensemble of 1, 2 | - | - | - | - | - | **32/40" in text and "dropped 8 | - | 15 |" in text
     assert "the seeds as one ensemble" not in markdown(cfg, results)
-    assert cfg.ensemble_dir().name == "ensemble_seeds1-2_decay6000_lr0.003"
+    assert cfg.ensemble_dir().name == "ensemble_seeds1-2_decay7500_lr0.003"
     with pytest.raises(ValueError, match="--ensemble needs two training seeds or more"):
         SuiteBenchConfig(seeds=[0], ensemble=True)
 

@@ -71,7 +71,7 @@ def test_config_presets_and_overrides():
         "img_size",
         "attn_dim",
     )
-    assert tuple(getattr(suite, f) for f in multi) == (True, 24, 3e-3, 6000, 64, 128)
+    assert tuple(getattr(suite, f) for f in multi) == (True, 24, 3e-3, 7500, 64, 128)
     # The gpu preset: the suite recipe with a wider network over a 3000-step decay (7.6 M parameters, 4.7x).
     gpu = SigmaConfig(preset="gpu", device="cpu")
     assert tuple(getattr(gpu, f) for f in multi) == (True, 24, 3e-3, 3000, 64, 256)
