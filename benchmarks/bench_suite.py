@@ -36,9 +36,9 @@ The defaults are the best five-task recipe measured on 2 CPU cores (docs/learnin
 variation at 7500 steps, a third draw": 212/400, 209/400 and 205/400 for three training seeds): 50 demonstrations
 per variation and 7500 steps in bf16 autocast (``--policy.use_cpu_bf16_autocast``, a no-op on CPUs without native
 bf16), which trained in 55-56 minutes per seed on a 2-core Intel Xeon with AMX-BF16 and 83 on an AMD EPYC;
-collection took 11 and 23 minutes, evaluation 5 and 7 (RESULTS.md). Until 2026-12-04
-they were four tasks (no Door), 30 demonstrations and 6000 steps: ``--tasks
-'[lift,stack,pick_place,nut_assembly]' --episodes 30 --steps 6000``.
+collection took 11 and 23 minutes, evaluation 5 and 7 (RESULTS.md). Until 2026-12-04 they were four tasks (no
+Door), 30 demonstrations and 6000 steps: ``--tasks '[lift,stack,pick_place,nut_assembly]' --episodes 30 --steps
+6000``.
 """
 
 from __future__ import annotations
