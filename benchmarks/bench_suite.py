@@ -33,13 +33,13 @@ into its own run directory (``runs/seed<S>_decay<D>_lr<LR>``, then ``_batch<B>``
 at batch 8, ``gpu`` 3000 at batch 64).
 
 The defaults are the best five-task recipe for the Σ-agent measured on 2 CPU cores (docs/learning.md "50
-demonstrations per variation at 7500 steps, a third draw": 212/400, 215/400, 209/400 and 205/400 for four training
-draws): 50 demonstrations per variation and 7500 steps in bf16 autocast (``--policy.use_cpu_bf16_autocast``, a no-op
-on CPUs without native bf16), which trained in 55-56 minutes per seed on a 2-core Intel Xeon with AMX-BF16 and 63-83
-on an AMD EPYC; collection took 11 and 23 minutes, evaluation 5 and 7 (RESULTS.md). The same recipe without the
-contrastive terms (``--policy_args '[--policy.use_cpu_bf16_autocast=true,--policy.use_contrastive=false]'``) scored
-3 points higher in pairs (docs/learning.md "Contrastive vs BC-only at the benchmark's defaults, in pairs"). Until
-2026-12-04 the defaults were four tasks (no Door), 30 demonstrations and 6000 steps: ``--tasks
+demonstrations per variation at 7500 steps, a third draw" and, for the fourth draw, "Contrastive vs BC-only at the
+benchmark's defaults, in pairs": 212/400, 215/400, 209/400 and 205/400): 50 demonstrations per variation and 7500
+steps in bf16 autocast (``--policy.use_cpu_bf16_autocast``, a no-op on CPUs without native bf16), which trained in
+55-56 minutes per seed on a 2-core Intel Xeon with AMX-BF16 and 63-83 on an AMD EPYC; collection took 11 and 23
+minutes, evaluation 5 and 7 (RESULTS.md). The same recipe without the contrastive terms (``--policy_args
+'[--policy.use_cpu_bf16_autocast=true,--policy.use_contrastive=false]'``) scored 3 points higher in pairs (the second
+section). Until 2026-12-04 the defaults were four tasks (no Door), 30 demonstrations and 6000 steps: ``--tasks
 '[lift,stack,pick_place,nut_assembly]' --episodes 30 --steps 6000``.
 """
 
