@@ -1,6 +1,6 @@
 """One benchmark training run, resumable stage by stage: ``lerobot-train`` (unless its checkpoint is there),
-``sigma-diagnose`` on every checkpoint, ``sigma-eval`` closed loop (unless its results are there). Shared by the
-learning and demonstrations benchmarks."""
+``sigma-eval`` closed loop (unless its results are there), ``sigma-diagnose`` on every checkpoint (those it has
+already scored alike kept). Shared by the learning, demonstrations and suite benchmarks."""
 
 from __future__ import annotations
 

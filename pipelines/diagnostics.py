@@ -31,7 +31,9 @@ Pointed at a ``lerobot-train`` output directory, it diagnoses every saved checkp
 the training keyframes and on held-out keyframes, and writes learning curves: ``diagnostics.json`` (every number),
 ``curves.png`` and ``curves.rrd`` (Rerun scalars, one entity per metric; ``pipelines/curves.py``). Held-out
 keyframes are either another dataset (``--heldout_root``, e.g. collected with other seeds) or the episodes of the
-training dataset that the run did not train on (``--dataset.episodes`` in its ``train_config.json``).
+training dataset that the run did not train on (``--dataset.episodes`` in its ``train_config.json``). A rerun keeps
+the scores ``diagnostics.json`` holds for the same weights (by their SHA-256) and scoring options, so a run that has
+saved more checkpoints since is scored only on the new ones (``--reuse false`` scores every one again).
 
 Example::
 
@@ -82,6 +84,10 @@ class DiagnoseConfig:
     act_with_ema: bool | None = None
     # Where diagnostics.json, curves.png and curves.rrd go (default: <run>/diagnostics or <checkpoint>/..).
     output_dir: Path | None = None
+    # Keep the scores of checkpoints that diagnostics.json already holds for the same weights (by content) and the
+    # same scoring options, and score only the others: a rerun on a run that saved more checkpoints, or a benchmark
+    # republishing finished runs, costs only what is new. false: score every checkpoint again.
+    reuse: bool = True
 
 
 # ---------------------------------------------------------------------------------------------- data
@@ -247,11 +253,38 @@ def run_checkpoints(run_dir: Path) -> list[tuple[int, Path]]:
     return ckpts
 
 
+def scoring_options(cfg: DiagnoseConfig) -> dict[str, Any]:
+    """The options that change a checkpoint's scores (not ``batch_size``, ``device`` or where they are written)."""
+    return {
+        "root": None if cfg.root is None else str(cfg.root),
+        "heldout_root": None if cfg.heldout_root is None else str(cfg.heldout_root),
+        "max_frames": cfg.max_frames,
+        "swap_scenes_per_task": cfg.swap_scenes_per_task,
+        "gripper_pairs_per_task": cfg.gripper_pairs_per_task,
+        "act_with_ema": cfg.act_with_ema,
+    }
+
+
+def saved_scores(path: Path, options: dict[str, Any]) -> tuple[dict[str, int], dict[tuple[int, str], dict]]:
+    """The set sizes and the checkpoint entries, keyed by (step, weights SHA-256), of the report at ``path`` when it
+    was written with the same ``options``; nothing otherwise (no report, another version's or other options)."""
+    try:
+        saved = json.loads(path.read_text())
+    except (FileNotFoundError, json.JSONDecodeError):
+        return {}, {}
+    if saved.get("options") != options:
+        return {}, {}
+    entries = {(c["step"], c["weights_sha256"]): c for c in saved["checkpoints"] if "weights_sha256" in c}
+    return saved["sets"], entries
+
+
 def run_diagnose(cfg: DiagnoseConfig) -> dict[str, Any]:
-    """Diagnose one checkpoint or every checkpoint of a run; write the report; return it."""
+    """Diagnose one checkpoint or every checkpoint of a run (those already scored alike kept, ``cfg.reuse``); write
+    the report, whole or not at all; return it."""
     from tqdm import tqdm
 
     from pipelines.checkpoints import check_act_with_ema, load_policy
+    from sigma_data.files import sha256, write_json_atomic
 
     if (cfg.run is None) == (cfg.checkpoint is None):
         raise ValueError("give exactly one of --run (a lerobot-train output dir) or --checkpoint")
@@ -260,36 +293,43 @@ def run_diagnose(cfg: DiagnoseConfig) -> dict[str, Any]:
         Path(cfg.run) / "diagnostics" if cfg.run else Path(cfg.checkpoint).parent / "diagnostics"
     )
     out_dir.mkdir(parents=True, exist_ok=True)
-    sets = keyframe_sets(cfg, ckpts[-1][1])
-    for kf in sets:
-        kf.swap = swap_scenes(kf.dataset, kf.episodes, cfg.swap_scenes_per_task)
-        rows, _ = goal_rows(kf.dataset, kf.episodes)  # every goal frame: the thinned set has few neighbours
-        labels = row_labels(kf.dataset, rows, ("task",))
-        tasks = labels["task"].tolist() if labels is not None else ["unknown"] * len(rows)
-        kf.gripper = gripper_pairs(kf.dataset, rows, tasks, cfg.gripper_pairs_per_task)
-    report: dict[str, Any] = {"checkpoints": [], "sets": {s.name: len(s.indices) for s in sets}}
-    for step, ckpt in tqdm(ckpts, desc="sigma-diagnose", unit="checkpoint"):
+    options = scoring_options(cfg)
+    sizes, saved = saved_scores(out_dir / "diagnostics.json", options) if cfg.reuse else ({}, {})
+    digests = [sha256(ckpt / "model.safetensors") for _, ckpt in ckpts]
+    todo = [(step, ckpt, d) for (step, ckpt), d in zip(ckpts, digests, strict=True) if (step, d) not in saved]
+    if todo:
+        sets = keyframe_sets(cfg, ckpts[-1][1])
+        for kf in sets:
+            kf.swap = swap_scenes(kf.dataset, kf.episodes, cfg.swap_scenes_per_task)
+            # every goal frame: the thinned set has few neighbours
+            rows, _ = goal_rows(kf.dataset, kf.episodes)
+            labels = row_labels(kf.dataset, rows, ("task",))
+            tasks = labels["task"].tolist() if labels is not None else ["unknown"] * len(rows)
+            kf.gripper = gripper_pairs(kf.dataset, rows, tasks, cfg.gripper_pairs_per_task)
+        sizes = {s.name: len(s.indices) for s in sets}
+    if len(todo) < len(ckpts):
+        print(
+            f"sigma-diagnose: {len(ckpts) - len(todo)} of {len(ckpts)} checkpoints already scored in {out_dir}"
+        )
+    for step, ckpt, digest in tqdm(todo, desc="sigma-diagnose", unit="checkpoint"):
         if cfg.act_with_ema is not None:
             check_act_with_ema(ckpt)
         policy, pre, _ = load_policy(ckpt, cfg.device)
         if cfg.act_with_ema is not None:
             policy.config.act_with_ema = cfg.act_with_ema
-        report["checkpoints"].append(
-            {"step": step, "path": str(ckpt), **diagnose_checkpoint(policy, pre, sets, cfg.batch_size)}
-        )
+        scores = diagnose_checkpoint(policy, pre, sets, cfg.batch_size)
+        saved[step, digest] = {"step": step, "weights_sha256": digest, **scores}
+    entries = [{**saved[step, d], "path": str(ckpt)} for (step, ckpt), d in zip(ckpts, digests, strict=True)]
+    report: dict[str, Any] = {"options": options, "sets": sizes, "checkpoints": entries}
     curves = {
-        "steps": [c["step"] for c in report["checkpoints"]],
-        "sets": {
-            s.name: {m: [c[s.name]["all"][m] for c in report["checkpoints"]] for m in METRICS} for s in sets
-        },
+        "steps": [c["step"] for c in entries],
+        "sets": {name: {m: [c[name]["all"][m] for c in entries] for m in METRICS} for name in sizes},
     }
-    for s in sets:
-        if s.swap:
-            curves["sets"][s.name]["swap_nearest"] = [
-                c[s.name]["swap"]["swap_nearest"] for c in report["checkpoints"]
-            ]
+    for name in sizes:
+        if all("swap" in c[name] for c in entries):
+            curves["sets"][name]["swap_nearest"] = [c[name]["swap"]["swap_nearest"] for c in entries]
     report["curves"] = curves
-    (out_dir / "diagnostics.json").write_text(json.dumps(report, indent=2))
+    write_json_atomic(out_dir / "diagnostics.json", report, indent=2)
     if len(ckpts) > 1:
         plot_curves(curves, out_dir / "curves.png")
         log_curves_rerun(curves, out_dir / "curves.rrd")

@@ -93,6 +93,50 @@ def test_run_curves_on_training_and_held_out_episodes(tmp_path):
     assert rrd.rows["/diagnostics/heldout/trans_cm_median"]["Scalars:scalars"] == 2
 
 
+def test_a_rerun_scores_only_checkpoints_it_has_not_scored_alike(tmp_path):
+    """Scores are kept for the same weights (by content) and options, and redone for anything else."""
+    import shutil
+
+    root = write_tiny_keyframe_dataset(tmp_path / "tiny", episodes=4, size=32)
+    run = tmp_path / "run"
+    save_tiny_checkpoint(root, run / "checkpoints" / "000005" / "pretrained_model", [0, 1, 2], 0)
+    report = run_diagnose(DiagnoseConfig(run=run, batch_size=4))
+    saved_path = run / "diagnostics" / "diagnostics.json"
+    first = report["checkpoints"][0]["train"]["all"]["trans_cm_mean"]
+
+    # Mark the saved score: a kept entry keeps the mark, a rescored one loses it.
+    def mark_step_5():
+        saved = json.loads(saved_path.read_text())
+        saved["checkpoints"][0]["train"]["all"]["trans_cm_mean"] = -1.0
+        saved_path.write_text(json.dumps(saved))
+
+    def score_of(report, step):
+        return next(c for c in report["checkpoints"] if c["step"] == step)["train"]["all"]["trans_cm_mean"]
+
+    mark_step_5()
+    save_tiny_checkpoint(root, run / "checkpoints" / "000010" / "pretrained_model", [0, 1, 2], 1)
+    report = run_diagnose(DiagnoseConfig(run=run, batch_size=4))
+    assert score_of(report, 5) == -1.0  # kept
+    assert math.isfinite(score_of(report, 10)) and score_of(report, 10) > 0  # scored
+    assert report["curves"]["steps"] == [5, 10] and report["sets"] == {"train": 6, "heldout": 2}
+    assert json.loads(saved_path.read_text())["curves"]["steps"] == [5, 10]
+
+    # Other scoring options, or --reuse false: scored again.
+    report = run_diagnose(DiagnoseConfig(run=run, batch_size=4, max_frames=5))
+    assert score_of(report, 5) > 0
+    mark_step_5()
+    assert score_of(run_diagnose(DiagnoseConfig(run=run, batch_size=4, max_frames=5)), 5) == -1.0
+    assert score_of(run_diagnose(DiagnoseConfig(run=run, batch_size=4, max_frames=5, reuse=False)), 5) > 0
+
+    # The same step with other weights (a retrained run in the same directory): scored again.
+    mark_step_5()
+    other = tmp_path / "other"
+    save_tiny_checkpoint(root, other, [0, 1, 2], 2)
+    shutil.copy(other / "model.safetensors", run / "checkpoints" / "000005" / "pretrained_model")
+    report = run_diagnose(DiagnoseConfig(run=run, batch_size=4, max_frames=5))
+    assert score_of(report, 5) > 0 and score_of(report, 5) != first
+
+
 def test_goal_rows_skip_each_episodes_last_frame(tmp_path):
     root = write_tiny_keyframe_dataset(tmp_path / "tiny", episodes=3, size=32)
     ds = open_dataset(root)
