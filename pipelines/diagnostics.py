@@ -46,7 +46,7 @@ from __future__ import annotations
 import json
 import os
 import sys
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, fields
 from pathlib import Path
 from typing import Any
 
@@ -253,16 +253,15 @@ def run_checkpoints(run_dir: Path) -> list[tuple[int, Path]]:
     return ckpts
 
 
+# Options that do not change a checkpoint's scores: what is scored (its weights are keyed by content), how fast,
+# and where the report goes. Every other option of DiagnoseConfig is part of a saved score's key.
+NOT_SCORING = frozenset({"run", "checkpoint", "batch_size", "device", "output_dir", "reuse"})
+
+
 def scoring_options(cfg: DiagnoseConfig) -> dict[str, Any]:
-    """The options that change a checkpoint's scores (not ``batch_size``, ``device`` or where they are written)."""
-    return {
-        "root": None if cfg.root is None else str(cfg.root),
-        "heldout_root": None if cfg.heldout_root is None else str(cfg.heldout_root),
-        "max_frames": cfg.max_frames,
-        "swap_scenes_per_task": cfg.swap_scenes_per_task,
-        "gripper_pairs_per_task": cfg.gripper_pairs_per_task,
-        "act_with_ema": cfg.act_with_ema,
-    }
+    """The options that change a checkpoint's scores (every field but ``NOT_SCORING``), paths as strings."""
+    values = {f.name: getattr(cfg, f.name) for f in fields(cfg) if f.name not in NOT_SCORING}
+    return {name: str(v) if isinstance(v, Path) else v for name, v in values.items()}
 
 
 def saved_scores(path: Path, options: dict[str, Any]) -> tuple[dict[str, int], dict[tuple[int, str], dict]]:
