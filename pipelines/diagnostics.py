@@ -32,8 +32,10 @@ the training keyframes and on held-out keyframes, and writes learning curves: ``
 ``curves.png`` and ``curves.rrd`` (Rerun scalars, one entity per metric; ``pipelines/curves.py``). Held-out
 keyframes are either another dataset (``--heldout_root``, e.g. collected with other seeds) or the episodes of the
 training dataset that the run did not train on (``--dataset.episodes`` in its ``train_config.json``). A rerun keeps
-the scores ``diagnostics.json`` holds for the same weights (by their SHA-256) and scoring options, so a run that has
-saved more checkpoints since is scored only on the new ones (``--reuse false`` scores every one again).
+the scores ``diagnostics.json`` holds for the same weights (by their SHA-256), scoring options and data (the
+datasets' roots, the episodes trained on and a digest of each dataset's ``meta/``, which changes when a dataset is
+collected again), so a run that has saved more checkpoints since is scored only on the new ones (``--reuse false``
+scores every one again).
 
 Example::
 
@@ -57,6 +59,7 @@ from pipelines.curves import log_curves_rerun, plot_curves
 from pipelines.gripper_swap import GripperPair, gripper_pairs, gripper_swap
 from pipelines.instruction_swap import SwapScene, instruction_swap, swap_scenes
 from pipelines.keyframe_errors import METRICS, action_errors, split_summaries, summaries
+from sigma_data.files import sha256, tree_sha256, write_json_atomic
 
 
 @dataclass
@@ -150,12 +153,30 @@ def trained_episodes(checkpoint: Path) -> tuple[Path | None, list[int] | None]:
     return (Path(root) if root else None), ds.get("episodes")
 
 
-def keyframe_sets(cfg: DiagnoseConfig, checkpoint: Path) -> list[KeyframeSet]:
-    """The training keyframes, and the held-out keyframes when there are any."""
+def training_data(cfg: DiagnoseConfig, checkpoint: Path) -> tuple[Path, list[int] | None]:
+    """The training dataset's root (``--root``, or the one the checkpoint's ``train_config.json`` names) and the
+    episodes trained on (all when None)."""
     root, episodes = trained_episodes(checkpoint)
     root = cfg.root or root
     if root is None:
         raise ValueError(f"no --root given and {checkpoint}/train_config.json names no dataset root")
+    return Path(root), episodes
+
+
+def scored_data(cfg: DiagnoseConfig, checkpoint: Path) -> dict[str, Any]:
+    """What a checkpoint is scored on: the training dataset and its episodes as :func:`training_data` resolves them,
+    and each dataset's ``meta/`` digest, so that a dataset collected again at the same path is other data."""
+    root, episodes = training_data(cfg, checkpoint)
+    data: dict[str, Any] = {"root": str(root), "episodes": episodes}
+    data["meta_sha256"] = tree_sha256(root / "meta")
+    if cfg.heldout_root is not None:
+        data["heldout_meta_sha256"] = tree_sha256(Path(cfg.heldout_root) / "meta")
+    return data
+
+
+def keyframe_sets(cfg: DiagnoseConfig, checkpoint: Path) -> list[KeyframeSet]:
+    """The training keyframes, and the held-out keyframes when there are any."""
+    root, episodes = training_data(cfg, checkpoint)
     depth_unit = json.loads((Path(checkpoint) / "config.json").read_text()).get("depth_unit", "mm")
     train_ds = open_dataset(root, depth_unit)
     rows, steps = goal_rows(train_ds, episodes, cfg.max_frames)
@@ -283,7 +304,6 @@ def run_diagnose(cfg: DiagnoseConfig) -> dict[str, Any]:
     from tqdm import tqdm
 
     from pipelines.checkpoints import check_act_with_ema, load_policy
-    from sigma_data.files import sha256, write_json_atomic
 
     if (cfg.run is None) == (cfg.checkpoint is None):
         raise ValueError("give exactly one of --run (a lerobot-train output dir) or --checkpoint")
@@ -292,7 +312,7 @@ def run_diagnose(cfg: DiagnoseConfig) -> dict[str, Any]:
         Path(cfg.run) / "diagnostics" if cfg.run else Path(cfg.checkpoint).parent / "diagnostics"
     )
     out_dir.mkdir(parents=True, exist_ok=True)
-    options = scoring_options(cfg)
+    options = {**scoring_options(cfg), "data": scored_data(cfg, ckpts[-1][1])}
     sizes, saved = saved_scores(out_dir / "diagnostics.json", options) if cfg.reuse else ({}, {})
     digests = [sha256(ckpt / "model.safetensors") for _, ckpt in ckpts]
     todo = [(step, ckpt, d) for (step, ckpt), d in zip(ckpts, digests, strict=True) if (step, d) not in saved]

@@ -54,3 +54,15 @@ def sha256(path: str | Path) -> str:
     """The SHA-256 of a file's bytes, as hex (read in blocks: a checkpoint's weights are not loaded whole)."""
     with Path(path).open("rb") as f:
         return hashlib.file_digest(f, "sha256").hexdigest()
+
+
+def tree_sha256(directory: str | Path) -> str:
+    """The SHA-256 of every file under ``directory``: their paths relative to it and their bytes, in path order
+    (hidden temporaries skipped), so two trees with the same files hash alike wherever they lie."""
+    directory = Path(directory)
+    if not directory.is_dir():
+        raise FileNotFoundError(f"{directory} is not a directory")
+    digest = hashlib.sha256()
+    for path in sorted(p for p in directory.rglob("*") if p.is_file() and not p.name.startswith(".")):
+        digest.update(path.relative_to(directory).as_posix().encode() + b"\0" + sha256(path).encode() + b"\0")
+    return digest.hexdigest()

@@ -137,6 +137,42 @@ def test_a_rerun_scores_only_checkpoints_it_has_not_scored_alike(tmp_path):
     assert score_of(report, 5) > 0 and score_of(report, 5) != first
 
 
+def test_a_rerun_scores_again_on_other_data_under_the_same_names(tmp_path):
+    """The data a run's checkpoints name (no --root) is part of a saved score's key: other episodes trained on, or
+    the dataset collected again at the same path, are scored again; the same data is kept."""
+    import shutil
+
+    root = write_tiny_keyframe_dataset(tmp_path / "tiny", episodes=4, size=32)
+    run = tmp_path / "run"
+    ckpt = run / "checkpoints" / "000005" / "pretrained_model"
+    save_tiny_checkpoint(root, ckpt, [0, 1, 2], 0)
+    saved_path = run / "diagnostics" / "diagnostics.json"
+
+    def rerun_keeps_the_mark() -> bool:
+        saved = json.loads(saved_path.read_text())
+        saved["checkpoints"][0]["train"]["all"]["trans_cm_mean"] = -1.0
+        saved_path.write_text(json.dumps(saved))
+        report = run_diagnose(DiagnoseConfig(run=run, batch_size=4))
+        return report["checkpoints"][0]["train"]["all"]["trans_cm_mean"] == -1.0
+
+    report = run_diagnose(DiagnoseConfig(run=run, batch_size=4))
+    data = report["options"]["data"]
+    assert (data["root"], data["episodes"]) == (str(root), [0, 1, 2]) and len(data["meta_sha256"]) == 64
+    assert rerun_keeps_the_mark()  # the same data
+
+    config_path = ckpt / "train_config.json"
+    config = json.loads(config_path.read_text())
+    config["dataset"]["episodes"] = [0, 1]
+    config_path.write_text(json.dumps(config))
+    assert not rerun_keeps_the_mark()  # trained on other episodes
+    assert json.loads(saved_path.read_text())["sets"] == {"train": 4, "heldout": 4}
+
+    shutil.rmtree(root)
+    write_tiny_keyframe_dataset(root, episodes=4, size=32, seed=7)
+    assert not rerun_keeps_the_mark()  # collected again at the same path
+    assert rerun_keeps_the_mark()
+
+
 def test_goal_rows_skip_each_episodes_last_frame(tmp_path):
     root = write_tiny_keyframe_dataset(tmp_path / "tiny", episodes=3, size=32)
     ds = open_dataset(root)
