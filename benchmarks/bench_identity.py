@@ -36,9 +36,9 @@ import draccus
 import numpy as np
 import torch
 
-from pipelines.diagnostics import DiagnoseConfig, keyframe_sets
 from pipelines.evaluate import wilson_interval
 from pipelines.instruction_swap import swap_scenes
+from pipelines.keyframe_sets import keyframe_sets
 from sigma_policy.pointcloud import world_to_cube
 
 TOP_VIEW = 0  # sigma_policy.renderer.VIEW_NAMES[0]
@@ -206,9 +206,7 @@ def main(cfg: IdentityConfig) -> dict:
     if cfg.checkpoint is None:
         raise ValueError("--checkpoint is required (a sigma pretrained_model directory)")
     policy, pre, _ = load_policy(cfg.checkpoint, cfg.device)
-    sets = keyframe_sets(
-        DiagnoseConfig(checkpoint=cfg.checkpoint, heldout_root=cfg.heldout_root), cfg.checkpoint
-    )
+    sets = keyframe_sets(cfg.checkpoint, heldout_root=cfg.heldout_root)
     report = {"checkpoint": str(cfg.checkpoint), "task": cfg.task, "sets": {}}
     for kf in sets:
         report["sets"][kf.name] = probe_set(policy, pre, kf, cfg)

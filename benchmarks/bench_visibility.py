@@ -30,8 +30,8 @@ import draccus
 import numpy as np
 import torch
 
-from pipelines.diagnostics import DiagnoseConfig, keyframe_sets
 from pipelines.instruction_swap import swap_scenes
+from pipelines.keyframe_sets import keyframe_sets
 from sigma_policy.pointcloud import (
     PANDA_HAND_BOX,
     bounds_mask,
@@ -83,7 +83,7 @@ def main(cfg: VisibilityConfig) -> dict:
     if spec.points is None:
         raise ValueError(f"task {cfg.task!r} has no object geometry (TaskSpec.points) to count pixels of")
     policy, pre, _ = load_policy(cfg.checkpoint, cfg.device)
-    kf = keyframe_sets(DiagnoseConfig(checkpoint=cfg.checkpoint), cfg.checkpoint)[0]
+    kf = keyframe_sets(cfg.checkpoint)[0]
     scenes = [s for s in swap_scenes(kf.dataset, kf.episodes, per_task=10**6) if s.task == cfg.task][
         : cfg.scenes
     ]

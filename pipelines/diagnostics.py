@@ -48,7 +48,7 @@ from __future__ import annotations
 import json
 import os
 import sys
-from dataclasses import dataclass, field, fields
+from dataclasses import dataclass, fields
 from pathlib import Path
 from typing import Any
 
@@ -56,10 +56,11 @@ import draccus
 import numpy as np
 
 from pipelines.curves import log_curves_rerun, plot_curves
-from pipelines.gripper_swap import GripperPair, gripper_pairs, gripper_swap
-from pipelines.instruction_swap import SwapScene, instruction_swap, swap_scenes
+from pipelines.gripper_swap import gripper_pairs, gripper_swap
+from pipelines.instruction_swap import instruction_swap, swap_scenes
 from pipelines.keyframe_errors import METRICS, action_errors, split_summaries, summaries
-from sigma_data.files import sha256, tree_sha256, write_json_atomic
+from pipelines.keyframe_sets import KeyframeSet, goal_rows, keyframe_sets, row_labels, scored_data
+from sigma_data.files import sha256, write_json_atomic
 
 
 @dataclass
@@ -93,106 +94,6 @@ class DiagnoseConfig:
     reuse: bool = True
 
 
-# ---------------------------------------------------------------------------------------------- data
-
-
-@dataclass
-class KeyframeSet:
-    """Frames of a keyframe dataset that have a goal, with their recorded actions and keyframe step."""
-
-    name: str
-    dataset: Any  # LeRobotDataset
-    indices: list[int]  # dataset rows
-    steps: np.ndarray  # keyframe step within the episode (frame_index)
-    episodes: list[int] | None = None  # the dataset episodes it covers (None = all)
-    swap: list[SwapScene] = field(default_factory=list)  # scenes for the instruction-swap check
-    gripper: list[GripperPair] = field(default_factory=list)  # frame pairs for the gripper-swap check
-
-
-def goal_rows(
-    dataset: Any, episodes: list[int] | None = None, max_frames: int = 0
-) -> tuple[list[int], list[int]]:
-    """Rows of ``dataset`` (restricted to ``episodes``) except each episode's last frame; evenly thinned to
-    ``max_frames``. Returns (rows, their frame index in the episode)."""
-    eps = dataset.meta.episodes
-    rows, steps = [], []
-    wanted = None if episodes is None else set(episodes)
-    for ep in range(len(eps)):
-        index = int(eps["episode_index"][ep])
-        if wanted is not None and index not in wanted:
-            continue
-        start, stop = int(eps["dataset_from_index"][ep]), int(eps["dataset_to_index"][ep])
-        for k, row in enumerate(range(start, stop - 1)):
-            rows.append(row)
-            steps.append(k)
-    if max_frames and len(rows) > max_frames:
-        keep = np.linspace(0, len(rows) - 1, max_frames).round().astype(int)
-        rows, steps = [rows[i] for i in keep], [steps[i] for i in keep]
-    return rows, steps
-
-
-def open_dataset(root: Path, depth_unit: str = "mm") -> Any:
-    """A sigma keyframe dataset read by stock LeRobot, depth in ``depth_unit`` (the checkpoint's
-    ``policy.depth_unit``; LeRobot's default is mm)."""
-    from lerobot.datasets.lerobot_dataset import LeRobotDataset
-
-    if not (Path(root) / "meta" / "info.json").exists():
-        raise FileNotFoundError(f"{root} is not a LeRobot dataset (no meta/info.json)")
-    return LeRobotDataset(
-        f"local/{Path(root).name}", root=root, video_backend="pyav", depth_output_unit=depth_unit
-    )
-
-
-def trained_episodes(checkpoint: Path) -> tuple[Path | None, list[int] | None]:
-    """The dataset root and episode subset recorded in a checkpoint's ``train_config.json``."""
-    path = Path(checkpoint) / "train_config.json"
-    if not path.exists():
-        return None, None
-    ds = json.loads(path.read_text()).get("dataset", {})
-    root = ds.get("root")
-    return (Path(root) if root else None), ds.get("episodes")
-
-
-def training_data(cfg: DiagnoseConfig, checkpoint: Path) -> tuple[Path, list[int] | None]:
-    """The training dataset's root (``--root``, or the one the checkpoint's ``train_config.json`` names) and the
-    episodes trained on (all when None)."""
-    root, episodes = trained_episodes(checkpoint)
-    root = cfg.root or root
-    if root is None:
-        raise ValueError(f"no --root given and {checkpoint}/train_config.json names no dataset root")
-    return Path(root), episodes
-
-
-def scored_data(cfg: DiagnoseConfig, checkpoint: Path) -> dict[str, Any]:
-    """What a checkpoint is scored on: the training dataset and its episodes as :func:`training_data` resolves them,
-    and each dataset's ``meta/`` digest, so that a dataset collected again at the same path is other data."""
-    root, episodes = training_data(cfg, checkpoint)
-    data: dict[str, Any] = {"root": str(root), "episodes": episodes}
-    data["meta_sha256"] = tree_sha256(root / "meta")
-    if cfg.heldout_root is not None:
-        data["heldout_meta_sha256"] = tree_sha256(Path(cfg.heldout_root) / "meta")
-    return data
-
-
-def keyframe_sets(cfg: DiagnoseConfig, checkpoint: Path) -> list[KeyframeSet]:
-    """The training keyframes, and the held-out keyframes when there are any."""
-    root, episodes = training_data(cfg, checkpoint)
-    depth_unit = json.loads((Path(checkpoint) / "config.json").read_text()).get("depth_unit", "mm")
-    train_ds = open_dataset(root, depth_unit)
-    rows, steps = goal_rows(train_ds, episodes, cfg.max_frames)
-    sets = [KeyframeSet("train", train_ds, rows, np.asarray(steps), episodes)]
-    if cfg.heldout_root is not None:
-        ho = open_dataset(cfg.heldout_root, depth_unit)
-        rows, steps = goal_rows(ho, None, cfg.max_frames)
-        sets.append(KeyframeSet("heldout", ho, rows, np.asarray(steps)))
-    elif episodes is not None:
-        rest = sorted(set(range(train_ds.meta.total_episodes)) - set(episodes))
-        if rest:
-            rows, steps = goal_rows(train_ds, rest, cfg.max_frames)
-            sets.append(KeyframeSet("heldout", train_ds, rows, np.asarray(steps), rest))
-    return sets
-
-
 # ---------------------------------------------------------------------------------------------- predict
 
 
@@ -212,28 +113,6 @@ def predict_rows(policy: Any, pre: Any, kf: KeyframeSet, batch_size: int) -> tup
         with torch.inference_mode():
             preds.append(policy.predict(pre(batch)).action.float().cpu().numpy())
     return np.concatenate(preds), np.concatenate(trues)
-
-
-def row_labels(
-    dataset: Any, rows: list[int], keys: tuple[str, ...] = ("task", "variation")
-) -> dict[str, np.ndarray] | None:
-    """What ``meta/sigma.json`` records under each of ``keys`` for the episode of each dataset row ("unknown" where
-    an episode lacks it), read once for all keys; None for a dataset sigma did not collect (no sidecar)."""
-    from sigma_data.contract import SIDECAR, read_sidecar
-
-    root = Path(dataset.root)
-    if not (root / SIDECAR).exists():
-        return None
-    records = {int(e["episode_index"]): e for e in read_sidecar(root).get("episodes", [])}
-    eps = dataset.meta.episodes
-    row_episode: dict[int, int] = {}
-    for ep in range(len(eps)):
-        index = int(eps["episode_index"][ep])
-        row_episode.update(
-            dict.fromkeys(range(int(eps["dataset_from_index"][ep]), int(eps["dataset_to_index"][ep])), index)
-        )
-    episodes = [row_episode[int(r)] for r in rows]
-    return {key: np.array([str(records.get(e, {}).get(key, "unknown")) for e in episodes]) for key in keys}
 
 
 def diagnose_checkpoint(
@@ -312,12 +191,12 @@ def run_diagnose(cfg: DiagnoseConfig) -> dict[str, Any]:
         Path(cfg.run) / "diagnostics" if cfg.run else Path(cfg.checkpoint).parent / "diagnostics"
     )
     out_dir.mkdir(parents=True, exist_ok=True)
-    options = {**scoring_options(cfg), "data": scored_data(cfg, ckpts[-1][1])}
+    options = {**scoring_options(cfg), "data": scored_data(ckpts[-1][1], cfg.root, cfg.heldout_root)}
     sizes, saved = saved_scores(out_dir / "diagnostics.json", options) if cfg.reuse else ({}, {})
     digests = [sha256(ckpt / "model.safetensors") for _, ckpt in ckpts]
     todo = [(step, ckpt, d) for (step, ckpt), d in zip(ckpts, digests, strict=True) if (step, d) not in saved]
     if todo:
-        sets = keyframe_sets(cfg, ckpts[-1][1])
+        sets = keyframe_sets(ckpts[-1][1], cfg.root, cfg.heldout_root, cfg.max_frames)
         for kf in sets:
             kf.swap = swap_scenes(kf.dataset, kf.episodes, cfg.swap_scenes_per_task)
             # every goal frame: the thinned set has few neighbours

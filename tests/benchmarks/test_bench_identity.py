@@ -28,7 +28,7 @@ def test_probe_on_a_checkpoint_reads_each_cube_at_its_own_pixels(tmp_path):
     the sidecar groups the episodes in pairs (three scenes). The rendered pixels at each cube's position tell them
     apart in every scene, which holds only if the probe reads the features where the cube is."""
     root = write_tiny_keyframe_dataset(tmp_path / "lang", episodes=6, size=32, scenes="language")
-    from pipelines.diagnostics import open_dataset
+    from pipelines.keyframe_sets import open_dataset
 
     ds = open_dataset(root)
     instructions = [ds[int(ds.meta.episodes["dataset_from_index"][e])]["task"] for e in range(6)]

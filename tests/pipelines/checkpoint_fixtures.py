@@ -7,7 +7,7 @@ import json
 import torch
 from lerobot.policies.factory import make_policy, make_pre_post_processors
 
-from pipelines.diagnostics import open_dataset
+from pipelines.keyframe_sets import open_dataset
 from sigma_policy.configuration_sigma import SigmaConfig
 from tests.sigma_policy.tiny_dataset import BOUNDS
 

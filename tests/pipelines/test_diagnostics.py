@@ -9,8 +9,9 @@ import numpy as np
 import pytest
 import torch
 
-from pipelines.diagnostics import DiagnoseConfig, goal_rows, open_dataset, run_diagnose
+from pipelines.diagnostics import DiagnoseConfig, run_diagnose
 from pipelines.keyframe_errors import action_errors, summarise_errors
+from pipelines.keyframe_sets import goal_rows, open_dataset
 from sigma_policy.modeling_sigma import SigmaPolicy
 from sigma_policy.rotation import euler_xyz_to_quat
 from tests.pipelines.checkpoint_fixtures import save_tiny_checkpoint
@@ -173,25 +174,11 @@ def test_a_rerun_scores_again_on_other_data_under_the_same_names(tmp_path):
     assert rerun_keeps_the_mark()
 
 
-def test_goal_rows_skip_each_episodes_last_frame(tmp_path):
-    root = write_tiny_keyframe_dataset(tmp_path / "tiny", episodes=3, size=32)
-    ds = open_dataset(root)
-    rows, steps = goal_rows(ds)
-    assert len(rows) == ds.num_frames - ds.num_episodes
-    assert steps == [0, 1] * 3
-    assert goal_rows(ds, [1])[0] == [3, 4]
-    assert len(goal_rows(ds, max_frames=4)[0]) == 4
-
-
-def test_a_missing_dataset_is_named(tmp_path):
-    with pytest.raises(FileNotFoundError, match="not a LeRobot dataset"):
-        open_dataset(tmp_path / "nowhere")
-
-
 def test_checkpoint_prediction_matches_select_action(tmp_path):
     """What sigma-diagnose scores is what the policy acts on in closed loop (same pre-processor, same path)."""
     from pipelines.checkpoints import load_policy
-    from pipelines.diagnostics import KeyframeSet, predict_rows
+    from pipelines.diagnostics import predict_rows
+    from pipelines.keyframe_sets import KeyframeSet
 
     root = write_tiny_keyframe_dataset(tmp_path / "tiny", episodes=1, size=32)
     ckpt = tmp_path / "ckpt"
@@ -212,7 +199,8 @@ def test_checkpoint_prediction_matches_select_action(tmp_path):
 def test_errors_per_task_on_a_dataset_that_names_its_tasks(tmp_path):
     """A multi-task dataset's errors split by the task its sidecar records per episode; without one, no split."""
     from pipelines.checkpoints import load_policy
-    from pipelines.diagnostics import KeyframeSet, diagnose_checkpoint, summary_line
+    from pipelines.diagnostics import diagnose_checkpoint, summary_line
+    from pipelines.keyframe_sets import KeyframeSet
 
     root = write_tiny_keyframe_dataset(tmp_path / "tiny", episodes=3, size=32)
     save_tiny_checkpoint(root, tmp_path / "ckpt", [0, 1, 2], 0)

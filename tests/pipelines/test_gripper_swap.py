@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 import torch
 
-from pipelines.diagnostics import goal_rows, open_dataset
+from pipelines.keyframe_sets import goal_rows, open_dataset
 from sigma_data.contract import GRIPPER_OPEN_INDEX, STATE
 from tests.pipelines.checkpoint_fixtures import save_tiny_checkpoint
 from tests.sigma_policy.tiny_dataset import LIFT_M, write_tiny_keyframe_dataset
@@ -87,8 +87,9 @@ def test_gripper_swap_tells_a_policy_that_reads_the_state_from_one_that_does_not
 def test_sigma_diagnose_reports_the_gripper_swap(grasp_lift, tmp_path):
     """A real (untrained) checkpoint through ``diagnose_checkpoint``: the report and the summary line carry it."""
     from pipelines.checkpoints import load_policy
-    from pipelines.diagnostics import KeyframeSet, diagnose_checkpoint, summary_line
+    from pipelines.diagnostics import diagnose_checkpoint, summary_line
     from pipelines.gripper_swap import gripper_pairs
+    from pipelines.keyframe_sets import KeyframeSet
 
     rows, steps = goal_rows(grasp_lift)
     kf = KeyframeSet("train", grasp_lift, rows, np.asarray(steps))

@@ -8,7 +8,7 @@ import json
 import numpy as np
 import pytest
 
-from pipelines.diagnostics import goal_rows, open_dataset
+from pipelines.keyframe_sets import goal_rows, open_dataset
 from tests.pipelines.checkpoint_fixtures import save_tiny_checkpoint
 from tests.sigma_policy.tiny_dataset import write_tiny_keyframe_dataset
 
@@ -18,8 +18,9 @@ def test_instruction_swap_on_one_scene_under_two_instructions(tmp_path):
     Episodes 2-3 repeat the pair under a second task name: every task gets its scenes, and the swap is also
     reported per task."""
     from pipelines.checkpoints import load_policy
-    from pipelines.diagnostics import KeyframeSet, diagnose_checkpoint, summary_line
+    from pipelines.diagnostics import diagnose_checkpoint, summary_line
     from pipelines.instruction_swap import instruction_swap, swap_scenes
+    from pipelines.keyframe_sets import KeyframeSet
 
     root = write_tiny_keyframe_dataset(tmp_path / "lang", episodes=4, size=32, scenes="language")
     ds = open_dataset(root)

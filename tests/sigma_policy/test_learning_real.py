@@ -9,7 +9,8 @@ import numpy as np
 import pytest
 import torch
 
-from pipelines.diagnostics import KeyframeSet, diagnose_checkpoint, goal_rows, open_dataset
+from pipelines.diagnostics import diagnose_checkpoint
+from pipelines.keyframe_sets import KeyframeSet, goal_rows, open_dataset
 from sigma_data.suite import scene_bounds
 from sigma_policy.observation import batch_tasks
 from tests.sigma_policy.test_modeling import build, sample_indices, train, training_batch
