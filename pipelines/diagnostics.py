@@ -88,9 +88,9 @@ class DiagnoseConfig:
     act_with_ema: bool | None = None
     # Where diagnostics.json, curves.png and curves.rrd go (default: <run>/diagnostics or <checkpoint>/..).
     output_dir: Path | None = None
-    # Keep the scores of checkpoints that diagnostics.json already holds for the same weights (by content) and the
-    # same scoring options, and score only the others: a rerun on a run that saved more checkpoints, or a benchmark
-    # republishing finished runs, costs only what is new. false: score every checkpoint again.
+    # Keep the scores of checkpoints that diagnostics.json already holds for the same weights (by content), scoring
+    # options and data (keyframe_sets.scored_data), and score only the others: a rerun on a run that saved more
+    # checkpoints, or a benchmark republishing finished runs, costs only what is new. false: score every one again.
     reuse: bool = True
 
 

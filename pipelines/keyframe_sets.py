@@ -97,8 +97,11 @@ def scored_data(
     """What a checkpoint is scored on: the training dataset and its episodes as :func:`training_data` resolves them,
     and each dataset's ``meta/`` digest, so that a dataset collected again at the same path is other data."""
     root, episodes = training_data(checkpoint, root)
-    data: dict[str, Any] = {"root": str(root), "episodes": episodes}
-    data["meta_sha256"] = tree_sha256(root / "meta")
+    data: dict[str, Any] = {
+        "root": str(root),
+        "episodes": episodes,
+        "meta_sha256": tree_sha256(root / "meta"),
+    }
     if heldout_root is not None:
         data["heldout_meta_sha256"] = tree_sha256(Path(heldout_root) / "meta")
     return data

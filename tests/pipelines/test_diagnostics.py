@@ -94,6 +94,14 @@ def test_run_curves_on_training_and_held_out_episodes(tmp_path):
     assert rrd.rows["/diagnostics/heldout/trans_cm_median"]["Scalars:scalars"] == 2
 
 
+def mark_first_saved_score(path):
+    """Mark the first checkpoint's saved score in the report at ``path``: a kept entry keeps the mark (-1 cm), a
+    rescored one loses it."""
+    saved = json.loads(path.read_text())
+    saved["checkpoints"][0]["train"]["all"]["trans_cm_mean"] = -1.0
+    path.write_text(json.dumps(saved))
+
+
 def test_a_rerun_scores_only_checkpoints_it_has_not_scored_alike(tmp_path):
     """Scores are kept for the same weights (by content) and options, and redone for anything else."""
     import shutil
@@ -105,16 +113,10 @@ def test_a_rerun_scores_only_checkpoints_it_has_not_scored_alike(tmp_path):
     saved_path = run / "diagnostics" / "diagnostics.json"
     first = report["checkpoints"][0]["train"]["all"]["trans_cm_mean"]
 
-    # Mark the saved score: a kept entry keeps the mark, a rescored one loses it.
-    def mark_step_5():
-        saved = json.loads(saved_path.read_text())
-        saved["checkpoints"][0]["train"]["all"]["trans_cm_mean"] = -1.0
-        saved_path.write_text(json.dumps(saved))
-
     def score_of(report, step):
         return next(c for c in report["checkpoints"] if c["step"] == step)["train"]["all"]["trans_cm_mean"]
 
-    mark_step_5()
+    mark_first_saved_score(saved_path)  # step 5
     save_tiny_checkpoint(root, run / "checkpoints" / "000010" / "pretrained_model", [0, 1, 2], 1)
     report = run_diagnose(DiagnoseConfig(run=run, batch_size=4))
     assert score_of(report, 5) == -1.0  # kept
@@ -125,12 +127,12 @@ def test_a_rerun_scores_only_checkpoints_it_has_not_scored_alike(tmp_path):
     # Other scoring options, or --reuse false: scored again.
     report = run_diagnose(DiagnoseConfig(run=run, batch_size=4, max_frames=5))
     assert score_of(report, 5) > 0
-    mark_step_5()
+    mark_first_saved_score(saved_path)  # step 5
     assert score_of(run_diagnose(DiagnoseConfig(run=run, batch_size=4, max_frames=5)), 5) == -1.0
     assert score_of(run_diagnose(DiagnoseConfig(run=run, batch_size=4, max_frames=5, reuse=False)), 5) > 0
 
     # The same step with other weights (a retrained run in the same directory): scored again.
-    mark_step_5()
+    mark_first_saved_score(saved_path)  # step 5
     other = tmp_path / "other"
     save_tiny_checkpoint(root, other, [0, 1, 2], 2)
     shutil.copy(other / "model.safetensors", run / "checkpoints" / "000005" / "pretrained_model")
@@ -150,9 +152,7 @@ def test_a_rerun_scores_again_on_other_data_under_the_same_names(tmp_path):
     saved_path = run / "diagnostics" / "diagnostics.json"
 
     def rerun_keeps_the_mark() -> bool:
-        saved = json.loads(saved_path.read_text())
-        saved["checkpoints"][0]["train"]["all"]["trans_cm_mean"] = -1.0
-        saved_path.write_text(json.dumps(saved))
+        mark_first_saved_score(saved_path)
         report = run_diagnose(DiagnoseConfig(run=run, batch_size=4))
         return report["checkpoints"][0]["train"]["all"]["trans_cm_mean"] == -1.0
 
