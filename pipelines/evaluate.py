@@ -83,6 +83,10 @@ class EvalConfig:
     # For a checkpoint trained with a weight average (the policy's `ema_decay`, docs/method.md §10.1): act with the
     # average (true) or with the trained weights (false); None: the checkpoint's own choice (the average).
     act_with_ema: bool | None = None
+    # Empty grasps undone per episode (pipelines/regrasp.py): when a close leaves the fingers together (nothing
+    # held), the hand opens back at the approach it came down from and the policy is asked again. Each retreat is
+    # one of the episode's max_keyframes. 0: off, the policy's keyframes alone.
+    regrasps: int = 0
 
 
 def wilson_interval(successes: int, n: int, z: float = 1.96) -> tuple[float, float]:
@@ -219,6 +223,8 @@ def run_eval(cfg: EvalConfig) -> dict:
         raise CheckpointError(f"--checkpoint must be a pretrained_model directory, got {cfg.checkpoint}")
     if cfg.episodes < 1 or cfg.max_keyframes < 1 or cfg.workers < 1:
         raise ValueError("--episodes, --max_keyframes and --workers must be >= 1")
+    if cfg.regrasps < 0:
+        raise ValueError(f"--regrasps must be >= 0, got {cfg.regrasps}")
     check_checkpoint(cfg.checkpoint)  # here, not in a pool worker: a bad file is one clear error
     if cfg.ensemble:
         _check_ensemble(cfg)
@@ -275,6 +281,8 @@ def _resume(cfg: EvalConfig, jobs: list[Job]) -> tuple[EpisodeLog, list[EpisodeR
     }
     if cfg.act_with_ema is not None:  # the header of every other log stays as it was
         header["act_with_ema"] = cfg.act_with_ema
+    if cfg.regrasps:  # likewise
+        header["regrasps"] = cfg.regrasps
     if cfg.ensemble:  # the header of a single policy's log stays as it was
         header["ensemble_sha256"] = [sha256(Path(m) / "model.safetensors") for m in cfg.ensemble]
     log = EpisodeLog(cfg.output_dir, header)

@@ -18,6 +18,7 @@ from typing import TYPE_CHECKING, Any
 
 from pipelines.checkpoints import load_policy
 from pipelines.failures import failure_reason, grasp_fit, nearest_variation, other_variation_done
+from pipelines.regrasp import grasp_is_empty, retreat_keyframe
 
 if TYPE_CHECKING:
     from pipelines.evaluate import EvalConfig
@@ -129,11 +130,16 @@ class RolloutWorker:
         success, steps, k, error = False, 0, 0, None
         trace: list[dict] = []
         was_open = True
+        regrasps_left, retreat = self.cfg.regrasps, None
         try:
             for k in range(1, self.cfg.max_keyframes + 1):
-                action = self.act(obs, env.task_description)
-                if rec is not None:
-                    self._log_step(rec, env.task_description, k)
+                retreating = retreat is not None
+                if retreating:  # the last close held nothing: undo it (pipelines/regrasp.py)
+                    action, retreat = retreat, None
+                else:
+                    action = self.act(obs, env.task_description)
+                    if rec is not None:
+                        self._log_step(rec, env.task_description, k)
                 obs, _, terminated, _, info = env.step(action)
                 steps += info["control_steps"]
                 success = bool(info["is_success"])
@@ -152,10 +158,13 @@ class RolloutWorker:
                     | near
                     | grasp_fit(env, near.get("nearest", job.variation))
                     | ({"progress": env.task.progress(env.env)} if env.task.progress else {})
+                    | ({"regrasp": True} if retreating else {})
                 )
                 was_open = now_open
                 if terminated:
                     break
+                if regrasps_left and grasp_is_empty(trace[-1]):
+                    retreat, regrasps_left = retreat_keyframe(trace), regrasps_left - 1
         except Exception as exc:  # a bad action or a simulator error fails this episode, not the run
             logger.exception("episode %s failed", job)
             success, error = False, repr(exc)
