@@ -3,7 +3,8 @@
 :func:`failure_reason` turns an episode's trace into one short, task-independent reason (wrong object, grasp
 missed, dropped, repeats, not reached, timeout); :func:`failure_kind` is the kind a table counts. The scene
 probes the evaluation worker records at each keyframe live here too: :func:`nearest_variation` (which object the
-hand is over), :func:`grasp_fit` (how the object sits between the fingers) and :func:`other_variation_done` (the
+hand is over), :func:`grasp_fit` (how the object sits between the fingers), :func:`handle_fit` (how far round a
+handled object from its handle the hand is) and :func:`other_variation_done` (the
 scene ended in another instruction's success).
 """
 
@@ -33,7 +34,8 @@ def failure_reason(result: EpisodeResult, max_keyframes: int) -> str | None:
     :func:`nearest_variation`: the policy did not ground the instruction); ``grasp missed at keyframe k`` (the
     gripper closed on nothing: finger gap below 1 cm once the close has finished, :func:`_settled_gap`; where the
     task's objects have ``points``, followed by how the object sat between the open fingers, :func:`grasp_fit`:
-    wider than the 78 mm gap means the hand's yaw was wrong, far off centre its position);
+    wider than the 78 mm gap means the hand's yaw was wrong, far off centre its position; where they have a handle,
+    :func:`handle_fit`: how far round the object from its handle the hand came down);
     ``dropped at keyframe k`` (something was held, then the gripper opened away from success); ``repeats keyframe
     k`` (the next keyframe is the same position, within 1 cm, the same orientation, within 7.5°, and the same gripper
     command: stuck; Door's in-place turns of the hand are not repeats); ``keyframe k not reached
@@ -91,8 +93,15 @@ def _progress_text(trace: list[dict]) -> str:
 
 
 def _fit_text(trace: list[dict], i: int) -> str:
-    """How the object sat between the fingers for the close at ``trace[i]`` (:func:`grasp_fit`), from the keyframe
-    before it where the hand was already down (the grasp pose, fingers open), else from the close itself."""
+    """How the object sat between the fingers for the close at ``trace[i]`` (:func:`grasp_fit`), or where round a
+    handled object the hand was (:func:`handle_fit`), from the keyframe before it where the hand was already down
+    (the grasp pose, fingers open), else from the close itself."""
+    handle = next((trace[j] for j in (i - 1, i) if j >= 0 and "round_from_handle_deg" in trace[j]), None)
+    if handle is not None:
+        return (
+            f" ({handle['round_from_handle_deg']}° round the object from its handle,"
+            f" {handle['from_centre_mm']} mm from its centre)"
+        )
     fit = next((trace[j] for j in (i - 1, i) if j >= 0 and "across_fingers_mm" in trace[j]), None)
     if fit is None:
         return ""
@@ -175,6 +184,42 @@ def grasp_fit(env, variation: str) -> dict[str, int]:
     if ridge is not None:
         fit["ridge_deg"] = round(float(np.degrees(np.arccos(min(1.0, abs(float(closing @ ridge)))))))
     return fit
+
+
+# A hand this far from a handled object's centre (horizontally, m) is not at the object: no handle_fit.
+HANDLE_NEAR_M = 0.12
+
+
+def handle_fit(env, variation: str) -> dict[str, int]:
+    """Where the hand is round an object grasped by a handle off its middle (``TaskSpec.centre``; the nuts), seen
+    from above; ``{}`` for a task without one or a hand more than ``HANDLE_NEAR_M`` from the object's centre:
+
+    * ``round_from_handle_deg``: the angle at the object's centre from its handle (``TaskSpec.target``) to the grip
+      site, -180..180 (counter-clockwise positive);
+    * ``from_centre_mm``: the grip site's distance from the centre.
+
+    The expert grasps 8 mm beyond the handle site (0°, 62 mm from the square nut's centre): a grasp at the handle's
+    distance but tens of degrees round came down where the handle would be were the nut turned, on its ring.
+    """
+    import numpy as np
+
+    from sigma_data.poses import grip_site_frame, wrap_angle
+    from sigma_data.suite import get_variation
+
+    task = env.task
+    if task.centre is None or task.target is None:
+        return {}
+    v = get_variation(task, variation)
+    centre = task.centre(env.env, v)[:2]
+    to_handle = task.target(env.env, v)[:2] - centre
+    to_site = grip_site_frame(env.env)[0][:2] - centre
+    if np.linalg.norm(to_site) > HANDLE_NEAR_M:
+        return {}
+    angle = np.arctan2(to_site[1], to_site[0]) - np.arctan2(to_handle[1], to_handle[0])
+    return {
+        "round_from_handle_deg": round(float(np.degrees(wrap_angle(float(angle))))),
+        "from_centre_mm": round(1000 * float(np.linalg.norm(to_site))),
+    }
 
 
 def other_variation_done(env) -> str | None:

@@ -17,7 +17,7 @@ from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any
 
 from pipelines.checkpoints import load_policy
-from pipelines.failures import failure_reason, grasp_fit, nearest_variation, other_variation_done
+from pipelines.failures import failure_reason, grasp_fit, handle_fit, nearest_variation, other_variation_done
 from pipelines.regrasp import grasp_is_empty, retreat_keyframe
 
 if TYPE_CHECKING:
@@ -157,6 +157,7 @@ class RolloutWorker:
                     }
                     | near
                     | grasp_fit(env, near.get("nearest", job.variation))
+                    | handle_fit(env, near.get("nearest", job.variation))
                     | ({"progress": env.task.progress(env.env)} if env.task.progress else {})
                     | ({"regrasp": True} if retreating else {})
                 )

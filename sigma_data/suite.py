@@ -136,6 +136,7 @@ TASKS: dict[str, TaskSpec] = {
             expert=nut_assembly_expert,
             success=nut_assembly.success,
             target=nut_assembly.target,
+            centre=nut_assembly.centre,
             max_steps=600,
         ),
         TaskSpec(

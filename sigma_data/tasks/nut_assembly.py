@@ -39,6 +39,12 @@ def target(env: Any, variation: Variation) -> np.ndarray:
     return np.array(env.sim.data.site_xpos[env.sim.model.site_name2id(site)], dtype=np.float64)
 
 
+def centre(env: Any, variation: Variation) -> np.ndarray:
+    """World position of the centre of the nut the variation names (its body; the handle sticks out from it)."""
+    nut = nut_object(env, variation.params["nut"])
+    return np.array(env.sim.data.body_xpos[env.obj_body_id[nut.name]], dtype=np.float64)
+
+
 def success(env: Any, variation: Variation) -> bool:
     """The named nut sits around its own peg (robosuite's ``on_peg``) and the gripper is away from it."""
     nut = variation.params["nut"]

@@ -58,6 +58,8 @@ class TaskSpec:
     object a policy went for with it (``pipelines/failures.py``); None for a task with one object. ``points`` gives
     the world vertices (N, 3) of the variation's object, from which evaluation measures how wide the object is
     across the open fingers and how far off their centre it is at each keyframe; None where not defined.
+    ``centre`` gives, for an object grasped by a handle off its middle (the nuts), the object's centre (world xyz):
+    with ``target`` (the handle) evaluation measures how far round the object from its handle a grasp came down.
     ``progress`` gives the task's joint readings that success is judged by, rounded, by name (Door's hinge and lever
     angles): evaluation records them at each keyframe, so a failure says how far the task got; None where the
     objects' poses say it.
@@ -73,6 +75,7 @@ class TaskSpec:
     max_steps: int
     target: TargetFn | None = None
     points: PointsFn | None = None
+    centre: TargetFn | None = None
     progress: ProgressFn | None = None
 
     def __post_init__(self) -> None:

@@ -130,6 +130,20 @@ def test_a_missed_grasp_says_how_the_object_sat_between_the_fingers():
     )
 
 
+def test_a_missed_grasp_of_a_handled_object_says_how_far_round_from_its_handle():
+    """A nut's missed grasp names the angle round the nut from its handle, from the grasp pose before the close."""
+    trace = [
+        _step(1, PREGRASP),
+        _step(2, GRASP) | {"round_from_handle_deg": -71, "from_centre_mm": 55},
+        _step(3, GRASP, 0.0, closed=True, gap=0.002),
+    ]
+    reason = failure_reason(_result(trace), 12)
+    assert (
+        reason == "grasp missed at keyframe 3 (-71° round the object from its handle, 55 mm from its centre)"
+    )
+    assert failure_kind(reason) == "grasp missed"
+
+
 def test_doing_the_other_instruction_is_named_before_the_trace():
     result = _result([_step(1, GRASP, 0.0, closed=True, gap=0.04), _step(2, LIFT, 1.0, opened=True)])
     result.other_variation = "green_on_red"
@@ -281,3 +295,35 @@ def test_the_milk_cartons_ridge_against_the_closing_axis_in_real_robosuite():
             assert low <= grasp_fit(env, "milk")["ridge_deg"] <= high, turn
     finally:
         env.close()
+
+
+def test_how_far_round_the_nut_from_its_handle_in_real_robosuite():
+    """Above the expert's grasp of the square nut the hand is 0° round from the handle, 62 mm from the nut's
+    centre; above the same point turned a quarter turn about the centre, 90°; over the other side of the table, not
+    at the nut (nothing). Lift has no handled object."""
+    import numpy as np
+
+    from pipelines.failures import handle_fit
+    from sigma_data.experts.nut_assembly import GRASP_OFFSET, HANDLE_OUTWARD
+    from sigma_data.poses import top_down_quat
+    from sigma_data.sim_env import SigmaRobosuiteEnv
+    from sigma_data.suite import get_task
+
+    env = SigmaRobosuiteEnv("nut_assembly:square_nut", cameras=("agentview",), image_size=32)
+    try:
+        env.reset(seed=0)
+        centre = env.task.centre(env.env, env.variation)
+        out = (env.task.target(env.env, env.variation) - centre) * [1, 1, 0]
+        grasp = centre + out * (1 + HANDLE_OUTWARD / np.linalg.norm(out)) + [0, 0, GRASP_OFFSET + 0.06]
+        turned = centre + np.array([-grasp[1] + centre[1], grasp[0] - centre[0], grasp[2] - centre[2]])
+        quat = top_down_quat(float(np.arctan2(out[1], out[0])))
+        for point, angle in ((grasp, 0), (turned, 90)):
+            env.step(np.array([*point, *quat, 1.0, 0.0]))
+            fit = handle_fit(env, "square_nut")
+            assert abs(fit["round_from_handle_deg"] - angle) <= 8, (angle, fit)
+            assert abs(fit["from_centre_mm"] - 62) <= 8, (angle, fit)
+        env.step(np.array([centre[0], centre[1] - 0.2, grasp[2], *quat, 1.0, 0.0]))
+        assert handle_fit(env, "square_nut") == {}
+    finally:
+        env.close()
+    assert get_task("lift").centre is None
