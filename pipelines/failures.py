@@ -96,13 +96,13 @@ def _fit_text(trace: list[dict], i: int) -> str:
     """How the object sat between the fingers for the close at ``trace[i]`` (:func:`grasp_fit`), or where round a
     handled object the hand was (:func:`handle_fit`), from the keyframe before it where the hand was already down
     (the grasp pose, fingers open), else from the close itself."""
-    handle = next((trace[j] for j in (i - 1, i) if j >= 0 and "round_from_handle_deg" in trace[j]), None)
+    handle = _at_grasp(trace, i, "round_from_handle_deg")
     if handle is not None:
         return (
             f" ({handle['round_from_handle_deg']}° round the object from its handle,"
             f" {handle['from_centre_mm']} mm from its centre)"
         )
-    fit = next((trace[j] for j in (i - 1, i) if j >= 0 and "across_fingers_mm" in trace[j]), None)
+    fit = _at_grasp(trace, i, "across_fingers_mm")
     if fit is None:
         return ""
     ridge = f", closing {fit['ridge_deg']}° off its ridge" if "ridge_deg" in fit else ""
@@ -110,6 +110,11 @@ def _fit_text(trace: list[dict], i: int) -> str:
         f" ({fit['across_fingers_mm']} mm across the fingers, {fit['off_centre_mm']} mm off centre,"
         f" {fit['below_top_mm']} mm below its top{ridge})"
     )
+
+
+def _at_grasp(trace: list[dict], i: int, key: str) -> dict | None:
+    """The keyframe before the close at ``trace[i]`` if it recorded ``key``, else the close if it did, else None."""
+    return next((trace[j] for j in (i - 1, i) if j >= 0 and key in trace[j]), None)
 
 
 def _settled_gap(trace: list[dict], i: int) -> float:

@@ -146,6 +146,7 @@ class RolloutWorker:
                 now_open = bool(action[7] > 0.5)
                 fingers = obs["agent_pos"][8:10]
                 near = nearest_variation(env)
+                over = near.get("nearest", job.variation)  # the object the hand is over
                 trace.append(
                     {
                         "keyframe": k,
@@ -156,8 +157,8 @@ class RolloutWorker:
                         "finger_gap_m": round(float(abs(fingers[0]) + abs(fingers[1])), 4),
                     }
                     | near
-                    | grasp_fit(env, near.get("nearest", job.variation))
-                    | handle_fit(env, near.get("nearest", job.variation))
+                    | grasp_fit(env, over)
+                    | handle_fit(env, over)
                     | ({"progress": env.task.progress(env.env)} if env.task.progress else {})
                     | ({"regrasp": True} if retreating else {})
                 )

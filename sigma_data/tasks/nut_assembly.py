@@ -47,8 +47,7 @@ def centre(env: Any, variation: Variation) -> np.ndarray:
 
 def success(env: Any, variation: Variation) -> bool:
     """The named nut sits around its own peg (robosuite's ``on_peg``) and the gripper is away from it."""
-    nut = variation.params["nut"]
-    obj_pos = env.sim.data.body_xpos[env.obj_body_id[nut_object(env, nut).name]]
+    obj_pos = centre(env, variation)
     site_pos = env.sim.data.site_xpos[env.robots[0].eef_site_id["right"]]
     gripper_away = np.linalg.norm(site_pos - obj_pos) > MIN_GRIPPER_DISTANCE
-    return bool(env.on_peg(obj_pos, nut_index(env, nut)) and gripper_away)
+    return bool(env.on_peg(obj_pos, nut_index(env, variation.params["nut"])) and gripper_away)
