@@ -87,10 +87,6 @@ class EvalConfig:
     # held), the hand opens back at the approach it came down from and the policy is asked again. Each retreat is
     # one of the episode's max_keyframes. 0: off, the policy's keyframes alone.
     regrasps: int = 0
-    # With regrasps: after an empty grasp, the policy's translation keeps this many metres, horizontally, away from
-    # where that grasp closed, for the rest of the episode (SigmaPolicy.avoid, sigma_policy/exclusion.py), so that
-    # it is asked again somewhere else. 0: off, asked again as it is (it mostly closes at the same place again).
-    regrasp_avoid_m: float = 0.0
 
 
 def wilson_interval(successes: int, n: int, z: float = 1.96) -> tuple[float, float]:
@@ -229,8 +225,6 @@ def run_eval(cfg: EvalConfig) -> dict:
         raise ValueError("--episodes, --max_keyframes and --workers must be >= 1")
     if cfg.regrasps < 0:
         raise ValueError(f"--regrasps must be >= 0, got {cfg.regrasps}")
-    if cfg.regrasp_avoid_m < 0 or (cfg.regrasp_avoid_m and not cfg.regrasps):
-        raise ValueError(f"--regrasp_avoid_m must be 0, or > 0 with --regrasps, got {cfg.regrasp_avoid_m}")
     check_checkpoint(cfg.checkpoint)  # here, not in a pool worker: a bad file is one clear error
     if cfg.ensemble:
         _check_ensemble(cfg)
@@ -289,8 +283,6 @@ def _resume(cfg: EvalConfig, jobs: list[Job]) -> tuple[EpisodeLog, list[EpisodeR
         header["act_with_ema"] = cfg.act_with_ema
     if cfg.regrasps:  # likewise
         header["regrasps"] = cfg.regrasps
-    if cfg.regrasp_avoid_m:  # likewise
-        header["regrasp_avoid_m"] = cfg.regrasp_avoid_m
     if cfg.ensemble:  # the header of a single policy's log stays as it was
         header["ensemble_sha256"] = [sha256(Path(m) / "model.safetensors") for m in cfg.ensemble]
     log = EpisodeLog(cfg.output_dir, header)

@@ -11,9 +11,6 @@ an episode with retries has fewer keyframes left for the task, never more.
 close that was at least :data:`APPROACH_RISE_M` above it with the gripper open (the approach the policy chose
 before going down), else straight up from the close by :data:`FALLBACK_RISE_M`, with the gripper opened there
 (the executor moves the arm first, then the gripper: ``sigma_data/keyframe_executor.py``).
-
-Asked again from the same scene, the policy mostly closes within a centimetre of the failed close;
-``--regrasp_avoid_m`` makes it avoid that place (:func:`last_close`; sigma_policy/exclusion.py).
 """
 
 from __future__ import annotations
@@ -22,7 +19,7 @@ import numpy as np
 
 from pipelines.failures import EMPTY_GRIP_GAP_M
 
-__all__ = ["APPROACH_RISE_M", "FALLBACK_RISE_M", "grasp_is_empty", "last_close", "retreat_keyframe"]
+__all__ = ["APPROACH_RISE_M", "FALLBACK_RISE_M", "grasp_is_empty", "retreat_keyframe"]
 
 # A keyframe at least this far above the close, with the gripper open, is the approach the hand came down from.
 APPROACH_RISE_M = 0.03
@@ -36,21 +33,11 @@ def grasp_is_empty(step: dict) -> bool:
     return step["action"][7] <= 0.5 and step["finger_gap_m"] < EMPTY_GRIP_GAP_M
 
 
-def _last_close_index(trace: list[dict]) -> int:
-    return max((i for i, step in enumerate(trace) if step["closed_now"]), default=len(trace) - 1)
-
-
-def last_close(trace: list[dict]) -> np.ndarray:
-    """The 7-D pose (position, quaternion) of the last keyframe of ``trace`` that closed the gripper (the last
-    keyframe if none did): where the empty grasp was."""
-    return np.asarray(trace[_last_close_index(trace)]["action"][:7], dtype=np.float64)
-
-
 def retreat_keyframe(trace: list[dict]) -> np.ndarray:
     """The 9-D keyframe that undoes the last close of ``trace`` (see the module docstring): the approach pose the
     policy came down from, or the close's pose raised by ``FALLBACK_RISE_M``; gripper open, collisions ignored."""
-    close = _last_close_index(trace)
-    closed_at = last_close(trace)
+    close = max((i for i, step in enumerate(trace) if step["closed_now"]), default=len(trace) - 1)
+    closed_at = np.asarray(trace[close]["action"][:7], dtype=np.float64)
     for step in reversed(trace[:close]):
         action = step["action"]
         if action[7] > 0.5 and action[2] >= closed_at[2] + APPROACH_RISE_M:

@@ -18,7 +18,7 @@ from typing import TYPE_CHECKING, Any
 
 from pipelines.checkpoints import load_policy
 from pipelines.failures import failure_reason, grasp_fit, handle_fit, nearest_variation, other_variation_done
-from pipelines.regrasp import grasp_is_empty, last_close, retreat_keyframe
+from pipelines.regrasp import grasp_is_empty, retreat_keyframe
 
 if TYPE_CHECKING:
     from pipelines.evaluate import EvalConfig
@@ -167,8 +167,6 @@ class RolloutWorker:
                     break
                 if regrasps_left and grasp_is_empty(trace[-1]):
                     retreat, regrasps_left = retreat_keyframe(trace), regrasps_left - 1
-                    if self.cfg.regrasp_avoid_m:  # ask again somewhere else
-                        self.policy.avoid(last_close(trace)[:3], self.cfg.regrasp_avoid_m)
         except Exception as exc:  # a bad action or a simulator error fails this episode, not the run
             logger.exception("episode %s failed", job)
             success, error = False, repr(exc)

@@ -36,25 +36,16 @@ import math
 import torch
 from torch import Tensor
 
-from sigma_policy.exclusion import Exclusion
 from sigma_policy.views import VIEW_AXES, project_points, tilt_slope
 
 __all__ = [
     "gaussian_heatmaps",
-    "heads_at_cube_point",
     "heads_at_point",
     "heatmap_pool",
     "heatmap_to_cube_point",
     "predicted_uv",
     "voxel_centres",
 ]
-
-
-# Subtracted from the score of a voxel an exclusion covers: a score is a sum over the views of log(p + _PROB_FLOOR),
-# each in [log(_PROB_FLOOR), log 2], so every voxel outside beats every voxel inside and inside the order is kept
-# (the best of them if all are inside).
-_PROB_FLOOR = 1e-8
-_EXCLUDED = 1e4
 
 
 def gaussian_heatmaps(uv: Tensor, img_size: int, sigma: float = 1.5) -> Tensor:
@@ -110,46 +101,38 @@ def _centroid_offset(profile: Tensor, centre: Tensor, radius: int) -> Tensor:
 
 
 def heatmap_to_cube_point(
-    logits: Tensor,
-    img_size: int,
-    chunk: int = 16,
-    refine_px: int = 0,
-    side_tilt_deg: float = 0.0,
-    exclude: Exclusion | None = None,
+    logits: Tensor, img_size: int, chunk: int = 16, refine_px: int = 0, side_tilt_deg: float = 0.0
 ) -> Tensor:
     """Factorised argmax of the mean per-view softmax over the ``S^3`` voxel grid: logits ``(B, V, H, W)`` ->
     cube point ``(B, 3)``: the argmax voxel centre, refined below a voxel when ``refine_px > 0`` (module
-    docstring). ``chunk`` x-slices are scored at a time; ``side_tilt_deg`` is the views' tilt. Voxels that
-    ``exclude`` covers are never the argmax while any voxel is left outside it (sigma_policy/exclusion.py); the
-    voxel chosen then is not refined (it often lies on the excluded peak's flank, and the centroid would pull it back
-    under the exclusion)."""
+    docstring). ``chunk`` x-slices are scored at a time; ``side_tilt_deg`` is the views' tilt."""
     B, V, H, W = logits.shape
     S = img_size
     if (len(VIEW_AXES), S, S) != (V, H, W):
         raise ValueError(f"logits must be (B, {len(VIEW_AXES)}, {S}, {S}), got {tuple(logits.shape)}")
     prob = torch.softmax(logits.float().flatten(2), dim=-1).view(B, V, S, S)
     if tilt_slope(side_tilt_deg) > 0.0:
-        return _projected_grid_point(prob, chunk, refine_px, side_tilt_deg, exclude)
-    g = voxel_centres(S, logits.device)
-    xy, xz, yz = _pair_sums(prob)
-    pick = (xy, xz, yz) if exclude is None else _pair_sums(_agreement(prob))
+        return _projected_grid_point(prob, chunk, refine_px, side_tilt_deg)
+    pair_sum: dict[tuple[int, int], Tensor] = {}
+    for view in range(V):
+        score, axes = _view_score(prob[:, view], view, S)
+        pair_sum[axes] = pair_sum[axes] + score if axes in pair_sum else score
+    zeros = torch.zeros(B, S, S, device=logits.device)
+    xy, xz, yz = (pair_sum.get(k, zeros) for k in ((0, 1), (0, 2), (1, 2)))
     best_val = torch.full((B,), -math.inf, device=logits.device)
     best_idx = torch.zeros(B, dtype=torch.long, device=logits.device)
     for a0 in range(0, S, chunk):
         a1 = min(S, a0 + chunk)
-        xy_, xz_, yz_ = pick
-        score = xy_[:, a0:a1, :, None] + xz_[:, a0:a1, None, :] + yz_[:, None, :, :]  # (B, a, S, S)
-        if exclude is not None:
-            covered = exclude.covers(g[None, a0:a1, None], g[None, None, :])[..., None]
-            score = torch.where(covered, score - _EXCLUDED, score)
+        score = xy[:, a0:a1, :, None] + xz[:, a0:a1, None, :] + yz[:, None, :, :]  # (B, a, S, S)
         val, idx = score.flatten(1).max(1)
         better = val > best_val
         best_val = torch.where(better, val, best_val)
         best_idx = torch.where(better, idx + a0 * S * S, best_idx)
     a, rem = best_idx // (S * S), best_idx % (S * S)
     b_, c = rem // S, rem % S
+    g = voxel_centres(S, logits.device)
     point = torch.stack([g[a], g[b_], g[c]], dim=-1)
-    if refine_px <= 0 or exclude is not None:  # refined, an edge voxel would slide back toward the peak
+    if refine_px <= 0:
         return point
     rows = torch.arange(B, device=logits.device)
     # 1D profiles through the peak: x from xy[:, :, b] and xz[:, :, c]; y from xy[:, a, :] and yz[:, :, c];
@@ -163,25 +146,6 @@ def heatmap_to_cube_point(
         [sum(_centroid_offset(p, k, refine_px) for p, k in pair) / 2 for pair in profiles], dim=-1
     )
     return point + shift * (2 / S)  # one voxel is 2 / S in cube coordinates
-
-
-def _pair_sums(maps: Tensor) -> tuple[Tensor, Tensor, Tensor]:
-    """Per-view maps ``(B, V, S, S)`` summed per pair of cube axes, each ``(B, S, S)`` indexed by voxel indices:
-    ``xy``, ``xz``, ``yz`` (zeros for a pair no view sees)."""
-    pair_sum: dict[tuple[int, int], Tensor] = {}
-    for view in range(maps.shape[1]):
-        score, axes = _view_score(maps[:, view], view, maps.shape[-1])
-        pair_sum[axes] = pair_sum[axes] + score if axes in pair_sum else score
-    zeros = torch.zeros_like(maps[:, 0])
-    xy, xz, yz = (pair_sum.get(k, zeros) for k in ((0, 1), (0, 2), (1, 2)))
-    return xy, xz, yz
-
-
-def _agreement(prob: Tensor) -> Tensor:
-    """What an exclusion's argmax sums instead of the probabilities: their logs, so that the views multiply. A sum
-    of probabilities scores a voxel that shares two views' pixels with the excluded peak (beside it along a side
-    view's line of sight) above a lesser place that every view shows; a product does not."""
-    return torch.log(prob + _PROB_FLOOR)
 
 
 @functools.lru_cache(maxsize=8)
@@ -221,18 +185,13 @@ def _voxel_taps(voxels: Tensor, S: int, side_tilt_deg: float) -> tuple[Tensor, T
     return i0, i0 + S, torch.stack(w)
 
 
-def _projected_grid_point(
-    prob: Tensor, chunk: int, refine_px: int, side_tilt_deg: float, exclude: Exclusion | None
-) -> Tensor:
+def _projected_grid_point(prob: Tensor, chunk: int, refine_px: int, side_tilt_deg: float) -> Tensor:
     """:func:`heatmap_to_cube_point` for tilted side views: every voxel centre projected (module docstring)."""
     B, S = prob.shape[0], prob.shape[-1]
     flat = prob.flatten(2)
-    pick = flat if exclude is None else _agreement(flat)
-    g = voxel_centres(S, prob.device)
 
-    def score(voxels: Tensor, flat: Tensor = flat) -> Tensor:
-        """Summed interpolated ``flat`` (the probability) ``(B, M)`` of flat voxel indices ``(M,)``, or ``(B, M)``
-        per sample."""
+    def score(voxels: Tensor) -> Tensor:
+        """Summed interpolated probability ``(B, M)`` of flat voxel indices ``(M,)``, or ``(B, M)`` per sample."""
         i0, i1, ww = _voxel_taps(voxels, S, float(side_tilt_deg))
         if voxels.ndim == 1:
             i0, i1, ww = (t.expand(B, -1, -1) for t in (i0, i1, ww))
@@ -245,17 +204,13 @@ def _projected_grid_point(
     best_idx = torch.zeros(B, dtype=torch.long, device=prob.device)
     for a0 in range(0, S, chunk):
         voxels = torch.arange(a0 * S * S, min(S, a0 + chunk) * S * S, device=prob.device)
-        scores = score(voxels, pick)
-        if exclude is not None:
-            covered = exclude.covers(g[voxels // (S * S)][None], g[voxels // S % S][None])
-            scores = torch.where(covered, scores - _EXCLUDED, scores)
-        val, idx = scores.max(1)
+        val, idx = score(voxels).max(1)
         better = val > best_val
         best_val = torch.where(better, val, best_val)
         best_idx = torch.where(better, idx + a0 * S * S, best_idx)
     cell = torch.stack([best_idx // (S * S), best_idx // S % S, best_idx % S], -1)  # (B, 3) voxel indices
-    point = g[cell]
-    if refine_px <= 0 or exclude is not None:  # refined, an edge voxel would slide back toward the peak
+    point = voxel_centres(S, prob.device)[cell]
+    if refine_px <= 0:
         return point
     steps = torch.arange(S, device=prob.device)
     shifts = []
@@ -279,17 +234,8 @@ def heads_at_point(logits: Tensor, side_tilt_deg: float, sigma_px: float) -> dic
     logits ``(B, V, H, W)`` predict (:func:`predicted_uv`): pooled there with a Gaussian of ``sigma_px`` pixels, as
     training pools them at the target, and the yaw scan centred there. For a second run of the heads after the
     logits were changed (instruction contrast, ensembles)."""
-    size = logits.shape[-1]
-    point = heatmap_to_cube_point(logits, size, side_tilt_deg=side_tilt_deg)
-    return heads_at_cube_point(point.to(logits.dtype), size, side_tilt_deg, sigma_px)
-
-
-def heads_at_cube_point(
-    point: Tensor, img_size: int, side_tilt_deg: float, sigma_px: float
-) -> dict[str, Tensor]:
-    """:func:`heads_at_point` for a cube point ``(B, 3)`` chosen otherwise (an exclusion's best voxel)."""
-    uv = project_points(point[:, None], img_size, side_tilt_deg)[0][:, 0]
-    return {"head_heatmap": gaussian_heatmaps(uv, img_size, sigma=sigma_px), "head_uv": uv}
+    uv = predicted_uv(logits, side_tilt_deg)
+    return {"head_heatmap": gaussian_heatmaps(uv, logits.shape[-1], sigma=sigma_px), "head_uv": uv}
 
 
 def heatmap_pool(heatmap: Tensor, features: Tensor) -> Tensor:

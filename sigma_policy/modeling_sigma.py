@@ -44,8 +44,7 @@ from sigma_policy.compat import match_saved_modules
 from sigma_policy.configuration_sigma import SigmaConfig
 from sigma_policy.contrastive import contrastive_losses, instruction_ids
 from sigma_policy.ensemble import check_members, mean_probability_logits
-from sigma_policy.exclusion import Exclusion
-from sigma_policy.heatmap import gaussian_heatmaps, heads_at_cube_point, heads_at_point, heatmap_to_cube_point
+from sigma_policy.heatmap import gaussian_heatmaps, heads_at_point, heatmap_to_cube_point
 from sigma_policy.instruction_contrast import contrast_instructions, instruction_negatives
 from sigma_policy.network import NetworkOutput, SigmaNetwork
 from sigma_policy.observation import Cloud, batch_tasks, camera_cloud, first_frames, proprio_input, take
@@ -137,9 +136,6 @@ class SigmaPolicy(PreTrainedPolicy):
             # where it stopped (only registered with a ramp, so other checkpoints keep their keys).
             self.register_buffer("aug_steps_taken", torch.zeros((), dtype=torch.long))
         self.last_prediction: SigmaPrediction | None = None
-        # World points (K, 3) the translation keeps ``_avoid_radius_m`` away from until reset() (avoid()).
-        self._avoid_points: Tensor | None = None
-        self._avoid_radius_m = 0.0
         # Further trained policies this one acts with (sigma_policy/ensemble.py); not part of this one's weights.
         self.__dict__["ensemble_members"] = []
 
@@ -189,18 +185,6 @@ class SigmaPolicy(PreTrainedPolicy):
 
     def reset(self) -> None:
         self.last_prediction = None
-        self._avoid_points, self._avoid_radius_m = None, 0.0
-
-    def avoid(self, point: Any, radius_m: float) -> None:
-        """Until :meth:`reset`, never put the translation within ``radius_m`` metres, horizontally, of the world
-        point ``point`` (3,), nor of any point avoided before (sigma_policy/exclusion.py): the heatmaps' best voxel
-        outside those vertical cylinders is the translation, and the heads are read there. What
-        ``sigma-eval --regrasp_avoid_m`` calls where a grasp closed on nothing (pipelines/regrasp.py)."""
-        p = torch.as_tensor(point, dtype=torch.float32, device=self._device).reshape(1, 3)
-        if not torch.isfinite(p).all():
-            raise ValueError(f"avoid: the point must be 3 finite world coordinates, got {point}")
-        self._avoid_points = p if self._avoid_points is None else torch.cat([self._avoid_points, p])
-        self._avoid_radius_m = float(radius_m)
 
     def update(self) -> None:
         """After every optimiser step (LeRobot's training loop calls it): move the weight average, if any."""
@@ -368,17 +352,9 @@ class SigmaPolicy(PreTrainedPolicy):
                 cfg.gt_heatmap_sigma,
                 cfg.side_tilt_deg,
             )
-        exclude = self._exclusion(bounds, T)
         point_cube = heatmap_to_cube_point(
-            out.trans.float(),
-            cfg.img_size,
-            refine_px=cfg.heatmap_refine_px,
-            side_tilt_deg=cfg.side_tilt_deg,
-            exclude=exclude,
+            out.trans.float(), cfg.img_size, refine_px=cfg.heatmap_refine_px, side_tilt_deg=cfg.side_tilt_deg
         )
-        if exclude is not None:  # the heads read where the translation now is
-            heads = heads_at_cube_point(point_cube, cfg.img_size, cfg.side_tilt_deg, cfg.gt_heatmap_sigma)
-            out = self._heads_at(views, tasks, batch, bounds, T, out.trans, heads)
         point = cube_to_world(point_cube, bounds)
         rotation_probs = torch.softmax(out.rot_logits.float(), -1)
         if T is not None:
@@ -404,26 +380,12 @@ class SigmaPolicy(PreTrainedPolicy):
         """The ensemble's output for one pass (sigma_policy/ensemble.py): this policy's ``out`` and every member's
         heatmaps averaged in probability, then every policy's heads run at the common point and averaged."""
         cfg = self.config
+        policies = [self, *self.ensemble_members]
         outs = [out] + [
-            m._run_network(views, tasks, batch, bounds, transforms=transforms) for m in self.ensemble_members
+            m._run_network(views, tasks, batch, bounds, transforms=transforms) for m in policies[1:]
         ]
         trans = mean_probability_logits([o.trans for o in outs], event_dims=2)  # per view
         heads = heads_at_point(trans, cfg.side_tilt_deg, cfg.gt_heatmap_sigma)
-        return self._heads_at(views, tasks, batch, bounds, transforms, trans, heads)
-
-    def _heads_at(
-        self,
-        views: Tensor,
-        tasks: list[str],
-        batch: dict[str, Any],
-        bounds: Tensor,
-        transforms: Tensor | None,
-        trans: Tensor,
-        heads: dict[str, Tensor],
-    ) -> NetworkOutput:
-        """The translation logits ``trans`` with the rotation, gripper and collision heads read at ``heads``
-        (``head_heatmap``, ``head_uv``) by this policy and every ensemble member, averaged in probability."""
-        policies = [self, *self.ensemble_members]
         pooled = [
             p._run_network(views, tasks, batch, bounds, transforms=transforms, **heads) for p in policies
         ]
@@ -433,15 +395,6 @@ class SigmaPolicy(PreTrainedPolicy):
         result.grip_logits = mean_probability_logits([o.grip_logits for o in pooled])
         result.collision_logits = mean_probability_logits([o.collision_logits for o in pooled])
         return result
-
-    def _exclusion(self, bounds: Tensor, transforms: Tensor | None) -> Exclusion | None:
-        """The points :meth:`avoid` named, as cylinders in this pass's cube (turned by ``transforms``), or None."""
-        if self._avoid_points is None:
-            return None
-        points = self._avoid_points.expand(bounds.shape[0], -1, -1)
-        if transforms is not None:
-            points = transform_points(transforms, points)
-        return Exclusion.around(points, self._avoid_radius_m, bounds)
 
     @torch.no_grad()
     def input_cloud(self, batch: dict[str, Any]) -> tuple[Tensor, Tensor, Tensor]:

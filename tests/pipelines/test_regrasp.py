@@ -57,12 +57,7 @@ class ScriptedWorker(RolloutWorker):
         from types import SimpleNamespace
 
         self.cfg, self.cameras, self.image_size, self.envs = cfg, ("agentview",), 32, {}
-        self.avoided: list[tuple[list[float], float]] = []  # what the rollout asked the policy to avoid
-        self.policy = SimpleNamespace(
-            reset=lambda: None,
-            config=SimpleNamespace(depth_unit="mm"),
-            avoid=lambda point, radius_m: self.avoided.append((list(point), radius_m)),
-        )
+        self.policy = SimpleNamespace(reset=lambda: None, config=SimpleNamespace(depth_unit="mm"))
         self.asked: list[str] = []
 
     def act(self, obs: dict, instruction: str) -> np.ndarray:
@@ -87,12 +82,9 @@ class ScriptedWorker(RolloutWorker):
         return np.array([*target, *quat, grip, 1.0])
 
 
-@pytest.mark.parametrize(("regrasps", "avoid_m"), [(0, 0.0), (1, 0.0), (1, 0.02)])
-def test_a_missed_grasp_is_undone_and_tried_again_in_real_robosuite(
-    tmp_path: Path, regrasps: int, avoid_m: float
-):
-    cfg = EvalConfig(max_keyframes=10, regrasps=regrasps, regrasp_avoid_m=avoid_m, output_dir=tmp_path)
-    worker = ScriptedWorker(cfg)
+@pytest.mark.parametrize("regrasps", [0, 1])
+def test_a_missed_grasp_is_undone_and_tried_again_in_real_robosuite(tmp_path: Path, regrasps: int):
+    worker = ScriptedWorker(EvalConfig(max_keyframes=10, regrasps=regrasps, output_dir=tmp_path))
     try:
         result = worker.run(Job("lift", "lift_cube", 100_000))
     finally:
@@ -108,15 +100,4 @@ def test_a_missed_grasp_is_undone_and_tried_again_in_real_robosuite(
         assert retreat["keyframe"] == 4 and retreat["finger_gap_m"] > 0.07  # opened, at the approach
         assert result.success and result.failure is None
         assert worker.asked == ["approach", "down", "close", "approach", "down", "close", "lift"]
-    # with --regrasp_avoid_m the policy is told, once, where the empty grasp closed
-    assert worker.avoided == ([(closes[0]["action"][:3], avoid_m)] if avoid_m else [])
     assert failure_reason(result, 10) == result.failure
-
-
-def test_avoiding_the_empty_grasp_needs_regrasps(tmp_path: Path):
-    from pipelines.evaluate import run_eval
-
-    (tmp_path / "config.json").write_text("{}")
-    for regrasps, avoid_m in ((0, 0.02), (1, -0.01)):
-        with pytest.raises(ValueError, match="--regrasp_avoid_m must be 0, or > 0 with --regrasps"):
-            run_eval(EvalConfig(checkpoint=tmp_path, regrasps=regrasps, regrasp_avoid_m=avoid_m))
