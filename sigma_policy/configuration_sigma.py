@@ -244,6 +244,8 @@ class SigmaConfig(PreTrainedConfig):
     # Channels of the heads' local encoder (network.LocalEncoder: full-resolution dilated convolutions pooled at
     # the keyframe position); 0 = off. None = from preset.
     local_channels: int | None = None
+    # The local features also enter the translation decoder beside its 1x1-convolution skip (network_config.py).
+    local_in_decoder: bool = False
     # Side views tilted down by this many degrees (sigma_policy/views.py), so that they see over a container's rim,
     # e.g. PickPlace's bins, whose walls hide the bread and the can from horizontal views (docs/learning.md). 0 =
     # RVT's horizontal side views (every preset: 45° and 30° both fitted and scored worse on PickPlace).

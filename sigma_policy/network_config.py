@@ -69,6 +69,10 @@ class NetworkConfig:
     # position, e.g. a cube's edges.
     local_channels: int = 0
     local_dilations: tuple[int, ...] = (1, 2, 4, 8)
+    # The same local features also enter the translation decoder's last convolutions beside ``d0`` (whose 1x1
+    # convolution sees one pixel), so the heatmap can read an outline around each pixel, e.g. which side of a nut
+    # its handle is on. Needs ``local_channels`` > 0.
+    local_in_decoder: bool = False
     # Width (pixels) of the Gaussian that pools the local features: in training the target heatmap has it, at
     # inference the same Gaussian sits at the predicted 3D point's projections, so the heads see the same pooling.
     head_pool_sigma: float = 1.5
@@ -97,6 +101,8 @@ class NetworkConfig:
         tilt_slope(self.side_tilt_deg)  # 0 <= angle < 90
         if self.local_channels < 0 or (self.local_channels and not self.local_dilations):
             raise ValueError("local_channels must be >= 0, with at least one dilation when > 0")
+        if self.local_in_decoder and not self.local_channels:
+            raise ValueError("local_in_decoder needs local_channels > 0")
         if self.yaw_scan_px < 0 or (self.yaw_scan_px and (self.yaw_scan_px % 2 or self.yaw_scan_px < 8)):
             raise ValueError(f"yaw_scan_px must be 0 (off) or an even number >= 8, got {self.yaw_scan_px}")
         if self.yaw_scan_px and self.num_rotation_bins % 2:

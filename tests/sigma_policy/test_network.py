@@ -221,6 +221,22 @@ def test_local_features_see_an_outline_wherever_it_lies_and_are_pooled_where_the
     assert all(p.grad is not None and p.grad.abs().sum() > 0 for p in net.local_encoder.parameters())
 
 
+def test_local_in_decoder_trains_the_local_encoder_through_the_heatmap():
+    """With ``local_in_decoder`` the translation logits read the local features, so the translation loss alone
+    trains the local encoder; without it only the heads do."""
+    with pytest.raises(ValueError, match="local_in_decoder needs local_channels"):
+        dataclasses.replace(SMALL, local_channels=0, local_in_decoder=True)
+    for on in (False, True):
+        cfg = dataclasses.replace(SMALL, local_channels=4, local_dilations=(1, 2), local_in_decoder=on)
+        net = SigmaNetwork(cfg, lang_token_dim=12, lang_sentence_dim=12)
+        img, tok, *_ = inputs(cfg)
+        net(img, tok).trans.logsumexp((-2, -1)).sum().backward()
+        grads = [p.grad for p in net.local_encoder.parameters()]
+        assert (
+            all(g is not None and g.abs().sum() > 0 for g in grads) if on else all(g is None for g in grads)
+        )
+
+
 def test_proprio_in_heads_widens_the_head_input():
     cfg = dataclasses.replace(SMALL, use_proprio=True, proprio_dim=12, proprio_in_heads=True)
     net = SigmaNetwork(cfg, lang_token_dim=12, lang_sentence_dim=12)
