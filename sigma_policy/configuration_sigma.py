@@ -245,8 +245,8 @@ class SigmaConfig(PreTrainedConfig):
     # the keyframe position); 0 = off. None = from preset.
     local_channels: int | None = None
     # The local features also enter the translation decoder beside its 1x1-convolution skip (network_config.py).
-    # Off in every preset: NutAssembly alone gained with it (docs/learning.md "Local features in the translation
-    # decoder"); the five-task suite is not measured with it yet.
+    # Off in every preset: NutAssembly alone gained with it, the five-task suite did not (docs/learning.md "Local
+    # features in the translation decoder" and "... on the five tasks").
     local_in_decoder: bool = False
     # Side views tilted down by this many degrees (sigma_policy/views.py), so that they see over a container's rim,
     # e.g. PickPlace's bins, whose walls hide the bread and the can from horizontal views (docs/learning.md). 0 =
