@@ -4,8 +4,8 @@
 missed, dropped, repeats, not reached, timeout); :func:`failure_kind` is the kind a table counts. The scene
 probes the evaluation worker records at each keyframe live here too: :func:`nearest_variation` (which object the
 hand is over), :func:`grasp_fit` (how the object sits between the fingers), :func:`handle_fit` (how far round a
-handled object from its handle the hand is) and :func:`other_variation_done` (the
-scene ended in another instruction's success).
+handled object from its handle the hand is), :func:`placement_fit` (how the object sits over where it must end)
+and :func:`other_variation_done` (the scene ended in another instruction's success).
 """
 
 from __future__ import annotations
@@ -36,7 +36,8 @@ def failure_reason(result: EpisodeResult, max_keyframes: int) -> str | None:
     task's objects have ``points``, followed by how the object sat between the open fingers, :func:`grasp_fit`:
     wider than the 78 mm gap means the hand's yaw was wrong, far off centre its position; where they have a handle,
     :func:`handle_fit`: how far round the object from its handle the hand came down);
-    ``dropped at keyframe k`` (something was held, then the gripper opened away from success); ``repeats keyframe
+    ``dropped at keyframe k`` (something was held, then the gripper opened away from success; where the task has a
+    ``placement``, followed by how the object sat over its goal, :func:`placement_fit`); ``repeats keyframe
     k`` (the next keyframe is the same position, within 1 cm, the same orientation, within 7.5°, and the same gripper
     command: stuck; Door's in-place turns of the hand are not repeats); ``keyframe k not reached
     (stalled|budget)`` (the executor could not get the arm there); ``timeout after N keyframes`` (every move
@@ -63,7 +64,7 @@ def failure_reason(result: EpisodeResult, max_keyframes: int) -> str | None:
             return f"grasp missed at keyframe {k}" + _fit_text(result.trace, i)
         held = held or step["closed_now"]
         if held and step["opened_now"]:
-            return f"dropped at keyframe {k}"
+            return f"dropped at keyframe {k}" + _placement_text(result.trace, i)
     for prev, step in zip(result.trace, result.trace[1:], strict=False):
         same_place = math.dist(prev["action"][:3], step["action"][:3]) < REPEAT_TOLERANCE_M
         same_turn = (
@@ -90,6 +91,20 @@ def _progress_text(trace: list[dict]) -> str:
     if not progress:
         return ""
     return "; at the end " + ", ".join(f"{name} {value}" for name, value in progress.items())
+
+
+def _placement_text(trace: list[dict], i: int) -> str:
+    """How the object sat over its goal when the gripper opened at ``trace[i]`` (:func:`placement_fit`), from the
+    keyframe before (the pose it was let go from) else the opening itself, as ``" (from peg 9 mm, turned 12°, peg
+    margin -2 mm)"``; empty where neither recorded it (the object was not over its goal)."""
+    step = _at_grasp(trace, i, "placement")
+    if step is None:
+        return ""
+    parts = []
+    for name, value in step["placement"].items():
+        words, _, unit = name.rpartition("_")
+        parts.append(f"{words.replace('_', ' ')} {value}" + ("°" if unit == "deg" else f" {unit}"))
+    return " (" + ", ".join(parts) + ")"
 
 
 def _fit_text(trace: list[dict], i: int) -> str:
@@ -225,6 +240,15 @@ def handle_fit(env, variation: str) -> dict[str, int]:
         "round_from_handle_deg": round(float(np.degrees(wrap_angle(float(angle))))),
         "from_centre_mm": round(1000 * float(np.linalg.norm(to_site))),
     }
+
+
+def placement_fit(env) -> dict[str, dict[str, int]]:
+    """``{"placement": {...}}``: how the instructed object sits over where it must end (``TaskSpec.placement``,
+    e.g. the nut's distance from its peg and how far inside its hole the peg stays); ``{}`` for a task without one
+    or an object not over its goal."""
+    task = env.task
+    fit = task.placement(env.env, env.variation) if task.placement is not None else {}
+    return {"placement": fit} if fit else {}
 
 
 def other_variation_done(env) -> str | None:

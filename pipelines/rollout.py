@@ -17,7 +17,14 @@ from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any
 
 from pipelines.checkpoints import load_policy
-from pipelines.failures import failure_reason, grasp_fit, handle_fit, nearest_variation, other_variation_done
+from pipelines.failures import (
+    failure_reason,
+    grasp_fit,
+    handle_fit,
+    nearest_variation,
+    other_variation_done,
+    placement_fit,
+)
 from pipelines.regrasp import grasp_is_empty, retreat_keyframe
 
 if TYPE_CHECKING:
@@ -160,6 +167,7 @@ class RolloutWorker:
                     | grasp_fit(env, over)
                     | handle_fit(env, over)
                     | ({"progress": env.task.progress(env.env)} if env.task.progress else {})
+                    | placement_fit(env)
                     | ({"regrasp": True} if retreating else {})
                 )
                 was_open = now_open

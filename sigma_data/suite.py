@@ -137,6 +137,7 @@ TASKS: dict[str, TaskSpec] = {
             success=nut_assembly.success,
             target=nut_assembly.target,
             centre=nut_assembly.centre,
+            placement=nut_assembly.placement,
             max_steps=600,
         ),
         TaskSpec(

@@ -47,7 +47,8 @@ ALIGN_ITERATIONS = 4
 RETREAT = 0.08
 
 
-# Allowed directions (rad, world yaw) from the handle to the nut centre while placing: never toward the robot.
+# Allowed directions (rad, world yaw) from the handle to the nut centre while placing: never toward the robot (the
+# hand would hover 6 cm beyond the square peg, out of the arm's reach at that height: it stalls about 3 cm short).
 # The square hole fits the square peg only near 0 mod 90 degrees of nut yaw; the round nut fits at any yaw.
 HANG_DIRECTIONS = {
     "square": np.radians([0.0, 90.0, -90.0]),

@@ -22,6 +22,7 @@ SuccessFn = Callable[[Any, "Variation"], bool]
 TargetFn = Callable[[Any, "Variation"], np.ndarray]
 PointsFn = Callable[[Any, "Variation"], np.ndarray]
 ProgressFn = Callable[[Any], dict[str, float]]
+PlacementFn = Callable[[Any, "Variation"], dict[str, int]]
 
 
 @dataclass(frozen=True)
@@ -62,7 +63,9 @@ class TaskSpec:
     with ``target`` (the handle) evaluation measures how far round the object from its handle a grasp came down.
     ``progress`` gives the task's joint readings that success is judged by, rounded, by name (Door's hinge and lever
     angles): evaluation records them at each keyframe, so a failure says how far the task got; None where the
-    objects' poses say it.
+    objects' poses say it. ``placement`` says how the variation's object sits over where it must end, by name and
+    in whole units (NutAssembly: the nut's distance from its peg and how far inside the hole the peg stays),
+    ``{}`` where it is not over it: evaluation records it at each keyframe, so a drop says how far off it was.
     """
 
     name: str
@@ -77,6 +80,7 @@ class TaskSpec:
     points: PointsFn | None = None
     centre: TargetFn | None = None
     progress: ProgressFn | None = None
+    placement: PlacementFn | None = None
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "env_kwargs", MappingProxyType(dict(self.env_kwargs)))

@@ -144,6 +144,22 @@ def test_a_missed_grasp_of_a_handled_object_says_how_far_round_from_its_handle()
     assert failure_kind(reason) == "grasp missed"
 
 
+def test_a_drop_says_how_the_object_sat_over_its_goal():
+    """A nut let go above its peg says, from the keyframe it was let go from, how far off the peg it was; a drop
+    away from any goal says nothing more."""
+    placed = {"placement": {"from_peg_mm": 9, "turned_deg": 12, "peg_margin_mm": -2}}
+    trace = [
+        _step(1, GRASP, 0.0, closed=True, gap=0.03),
+        _step(2, LIFT, 0.0) | placed,
+        _step(3, LIFT, 1.0, opened=True),
+    ]
+    reason = failure_reason(_result(trace), 12)
+    assert reason == "dropped at keyframe 3 (from peg 9 mm, turned 12°, peg margin -2 mm)"
+    assert failure_kind(reason) == "dropped"
+    trace[1].pop("placement")
+    assert failure_reason(_result(trace), 12) == "dropped at keyframe 3"
+
+
 def test_doing_the_other_instruction_is_named_before_the_trace():
     result = _result([_step(1, GRASP, 0.0, closed=True, gap=0.04), _step(2, LIFT, 1.0, opened=True)])
     result.other_variation = "green_on_red"
@@ -328,3 +344,35 @@ def test_how_far_round_the_nut_from_its_handle_in_real_robosuite():
     finally:
         env.close()
     assert get_task("lift").centre is None
+
+
+def test_how_the_nut_sits_over_its_peg_in_real_robosuite():
+    """The square nut moved (as a free body) to centred over its peg and squared with it: the peg is 6.75 mm inside
+    the hole all round; 5 mm off along x: 1.75 mm; turned 20° as well: the peg lands on the nut (negative); 20 cm
+    away: no reading. The trace of an evaluation carries it under "placement"."""
+    import numpy as np
+
+    from pipelines.failures import placement_fit
+    from sigma_data.sim_env import SigmaRobosuiteEnv
+    from sigma_data.tasks.nut_assembly import nut_object, peg_body_id
+
+    env = SigmaRobosuiteEnv("nut_assembly:square_nut", cameras=("agentview",), image_size=32)
+    try:
+        env.reset(seed=0)
+        sim = env.env.sim
+        joint = nut_object(env.env, "square").joints[0]
+        peg = np.array(sim.data.body_xpos[peg_body_id(env.env, "square")])
+
+        def place(dx, yaw_deg):
+            quat = [np.cos(np.radians(yaw_deg) / 2), 0, 0, np.sin(np.radians(yaw_deg) / 2)]  # wxyz
+            sim.data.set_joint_qpos(joint, [peg[0] + dx, peg[1], 1.1, *quat])
+            sim.forward()
+            return placement_fit(env)
+
+        assert place(0.0, 0.0) == {"placement": {"from_peg_mm": 0, "turned_deg": 0, "peg_margin_mm": 7}}
+        assert place(0.005, 90.0)["placement"] == {"from_peg_mm": 5, "turned_deg": 0, "peg_margin_mm": 2}
+        fit = place(0.005, 20.0)["placement"]
+        assert fit["turned_deg"] == 20 and fit["peg_margin_mm"] < 0
+        assert place(0.2, 0.0) == {}
+    finally:
+        env.close()
