@@ -97,7 +97,7 @@ def _placement_text(trace: list[dict], i: int) -> str:
     """How the object sat over its goal when the gripper opened at ``trace[i]`` (:func:`placement_fit`), from the
     keyframe before (the pose it was let go from) else the opening itself, as ``" (from peg 9 mm, turned 12°, peg
     margin -2 mm)"``; empty where neither recorded it (the object was not over its goal)."""
-    step = _at_grasp(trace, i, "placement")
+    step = _before_or_at(trace, i, "placement")
     if step is None:
         return ""
     parts = []
@@ -111,13 +111,13 @@ def _fit_text(trace: list[dict], i: int) -> str:
     """How the object sat between the fingers for the close at ``trace[i]`` (:func:`grasp_fit`), or where round a
     handled object the hand was (:func:`handle_fit`), from the keyframe before it where the hand was already down
     (the grasp pose, fingers open), else from the close itself."""
-    handle = _at_grasp(trace, i, "round_from_handle_deg")
+    handle = _before_or_at(trace, i, "round_from_handle_deg")
     if handle is not None:
         return (
             f" ({handle['round_from_handle_deg']}° round the object from its handle,"
             f" {handle['from_centre_mm']} mm from its centre)"
         )
-    fit = _at_grasp(trace, i, "across_fingers_mm")
+    fit = _before_or_at(trace, i, "across_fingers_mm")
     if fit is None:
         return ""
     ridge = f", closing {fit['ridge_deg']}° off its ridge" if "ridge_deg" in fit else ""
@@ -127,8 +127,9 @@ def _fit_text(trace: list[dict], i: int) -> str:
     )
 
 
-def _at_grasp(trace: list[dict], i: int, key: str) -> dict | None:
-    """The keyframe before the close at ``trace[i]`` if it recorded ``key``, else the close if it did, else None."""
+def _before_or_at(trace: list[dict], i: int, key: str) -> dict | None:
+    """The keyframe before ``trace[i]`` (a close or an opening: the pose the hand acted from) if it recorded ``key``,
+    else ``trace[i]`` if it did, else None."""
     return next((trace[j] for j in (i - 1, i) if j >= 0 and key in trace[j]), None)
 
 
