@@ -4,7 +4,8 @@ Waypoints (ignore_collision label): 8 cm above the grasp point (0) -> the grasp 
 beyond the handle site away from the nut (1) -> close (1) -> lift the nut
 to 25 cm above the table (0) -> turn the hand about the vertical (the square nut: the least turn that squares
 the nut with its peg; the round nut: so it hangs away from the robot, on the +x side of the handle where the wrist
-allows) (0) -> nut centre over the peg, 4 cm above its top, corrected in
+allows; the square nut turns on the way to the peg, the round nut in place) (0) -> nut centre over the peg, 4 cm
+above its top, corrected in
 closed loop from the measured nut position (<= 4 iterations, 3 mm; one keyframe) (0) -> down until the nut
 centre is 2.5 cm above the table (1) -> open (1) -> retreat 8 cm up (0).
 
@@ -123,15 +124,19 @@ def nut_assembly_expert(recorder: EpisodeRecorder, variation: Variation, rng: np
     arm.move("lift", [*grasp[:2], table_z + LIFT_ABOVE_TABLE], quat, ignore_collision=False)
 
     quat = top_down_quat(yaw + turn)
-    site, _ = grip_site_frame(env)
-    arm.move("turn", site, quat, ignore_collision=False)
-    check_grasp(env, nut, f"{variation.params['nut']} nut (after the turn)")
+    if variation.params["nut"] == "round":  # the square nut turns on the way to its peg: no keyframe in place
+        site, _ = grip_site_frame(env)
+        arm.move("turn", site, quat, ignore_collision=False)
+        check_grasp(env, nut, f"{variation.params['nut']} nut (after the turn)")
 
-    # Hover the nut centre over the peg, re-measuring the in-hand offset (the nut swings and slips a little).
+    # Hover the nut centre over the peg, re-measuring the in-hand offset (the nut swings and slips a little); a hand
+    # still to turn counts the offset turned with it.
     hover_z = peg_top + HOVER_ABOVE_PEG + NUT_HALF_THICKNESS
     for _ in range(ALIGN_ITERATIONS):
-        site, _ = grip_site_frame(env)
+        site, rot = grip_site_frame(env)
         in_hand = body_pose(env, nut.root_body)[0] - site
+        c, s = np.cos(yaw + turn - site_yaw(rot)), np.sin(yaw + turn - site_yaw(rot))
+        in_hand[:2] = [c * in_hand[0] - s * in_hand[1], s * in_hand[0] + c * in_hand[1]]
         target = np.array([*(peg_pos[:2] - in_hand[:2]), hover_z - in_hand[2]])
         arm.move(
             "align", target, quat, ignore_collision=False, keyframe=False, allow_stall=True, pos_tol=0.03
@@ -144,6 +149,7 @@ def nut_assembly_expert(recorder: EpisodeRecorder, variation: Variation, rng: np
             f"nut not aligned over its peg: {1000 * error:.1f} mm off after {ALIGN_ITERATIONS} tries"
         )
     recorder.mark_keyframe(arm.gripper_open, False)
+    check_grasp(env, nut, f"{variation.params['nut']} nut (over its peg)")
 
     site, _ = grip_site_frame(env)
     in_hand = body_pose(env, nut.root_body)[0] - site
