@@ -2,8 +2,10 @@
 
 Waypoints (ignore_collision label): 8 cm above the grasp point (0) -> the grasp point on the handle, 8 mm
 beyond the handle site away from the nut (1) -> close (1) -> lift the nut
-to 25 cm above the table (0) -> turn the hand about the vertical so the nut hangs away from the robot, on
-the +x side of the handle where the wrist allows (0) -> nut centre over the peg, 4 cm above its top, corrected in
+to 25 cm above the table (0) -> turn the hand about the vertical (the square nut: the least turn that squares
+the nut with its peg; the round nut: so it hangs away from the robot, on the +x side of the handle where the wrist
+allows; the square nut turns on the way to the peg, the round nut in place) (0) -> nut centre over the peg, 4 cm
+above its top, corrected in
 closed loop from the measured nut position (<= 4 iterations, 3 mm; one keyframe) (0) -> down until the nut
 centre is 2.5 cm above the table (1) -> open (1) -> retreat 8 cm up (0).
 
@@ -49,13 +51,18 @@ RETREAT = 0.08
 
 # Allowed directions (rad, world yaw) from the handle to the nut centre while placing: never toward the robot (the
 # hand would hover 6 cm beyond the square peg, out of the arm's reach at that height: it stalls about 3 cm short).
-# The square hole fits the square peg only near 0 mod 90 degrees of nut yaw; the round nut fits at any yaw.
+# The square hole fits the square peg only near 0 mod 90 degrees of nut yaw; the round nut fits at any yaw. The square
+# nut turns the least: unless its centre lies toward the robot from the handle, the turn is at most 45 degrees and
+# the hand ends at its grasp yaw rounded to a multiple of 90 degrees (the fingers close across the handle, so the
+# hand's yaw and the nut's agree mod 90), a yaw the policy can read from where its hand is (docs/learning.md "The
+# square nut hung toward the robot").
 HANG_DIRECTIONS = {
     "square": np.radians([0.0, 90.0, -90.0]),
     "round": np.radians(np.arange(-90.0, 91.0, 15.0)),
 }
 WRIST_LIMIT = 2.6  # rad; keep the Panda's joint 7 (range +-2.897) this far inside its range
-OFF_AXIS_PENALTY = 0.3  # rad-equivalent cost of not hanging the nut straight out along +x
+# rad-equivalent cost of not hanging the nut straight out along +x; none for the square nut (the least turn)
+OFF_AXIS_PENALTY = {"square": 0.0, "round": 0.3}
 
 
 def wrist_angle(env) -> float:
@@ -63,15 +70,16 @@ def wrist_angle(env) -> float:
     return float(env.sim.data.qpos[env.robots[0]._ref_joint_pos_indexes[6]])
 
 
-def plan_yaws(handle_yaw: float, hand_yaw: float, q7: float, directions: np.ndarray) -> tuple[float, float]:
+def plan_yaws(handle_yaw: float, hand_yaw: float, q7: float, nut: str) -> tuple[float, float]:
     """(grasp yaw, turn) for the handle grasp and the in-hand turn before placing.
 
     The fingers close across the handle (grasp yaw = handle yaw mod pi). After turning the hand by ``turn``
-    the handle->centre direction (``handle_yaw + pi`` now) becomes one of ``directions``. Joint 7 turns
+    the handle->centre direction (``handle_yaw + pi`` now) becomes one of ``HANG_DIRECTIONS[nut]``. Joint 7 turns
     opposite to the site yaw (q7 ~ q7_now - (yaw - yaw_now)); both yaws must keep it within
-    ``WRIST_LIMIT``. Minimises the largest hand rotation away from ``hand_yaw`` plus a penalty for hanging
-    the nut off the +x axis.
+    ``WRIST_LIMIT``. The round nut minimises the largest hand rotation away from ``hand_yaw`` plus a penalty for
+    hanging the nut off the +x axis; the square nut the grasp's rotation away from ``hand_yaw`` plus the turn.
     """
+    directions, penalty = HANG_DIRECTIONS[nut], OFF_AXIS_PENALTY[nut]
     base = closest_symmetric_yaw(handle_yaw, hand_yaw, np.pi)
     best, best_cost = None, np.inf
     for direction in directions:
@@ -80,7 +88,10 @@ def plan_yaws(handle_yaw: float, hand_yaw: float, q7: float, directions: np.ndar
             wrist = [q7 - (y - hand_yaw) for y in (yaw, yaw + turn)]
             if max(abs(w) for w in wrist) > WRIST_LIMIT:
                 continue
-            cost = max(abs(yaw - hand_yaw), abs(yaw + turn - hand_yaw)) + OFF_AXIS_PENALTY * abs(direction)
+            if nut == "square":
+                cost = abs(yaw - hand_yaw) + abs(turn)
+            else:
+                cost = max(abs(yaw - hand_yaw), abs(yaw + turn - hand_yaw)) + penalty * abs(direction)
             if cost < best_cost:
                 best, best_cost = (yaw, turn), cost
     if best is None:
@@ -99,8 +110,9 @@ def nut_assembly_expert(recorder: EpisodeRecorder, variation: Variation, rng: np
     centre, _ = body_pose(env, nut.root_body)
     handle = np.array(env.sim.data.site_xpos[env.sim.model.site_name2id(nut.important_sites["handle"])])
     handle_yaw = float(np.arctan2(*(handle - centre)[1::-1]))
-    hang = HANG_DIRECTIONS[variation.params["nut"]]
-    yaw, turn = plan_yaws(handle_yaw, site_yaw(grip_site_frame(env)[1]), wrist_angle(env), hang)
+    yaw, turn = plan_yaws(
+        handle_yaw, site_yaw(grip_site_frame(env)[1]), wrist_angle(env), variation.params["nut"]
+    )
     quat = top_down_quat(yaw)
 
     outward = (handle - centre) * [1, 1, 0]
@@ -112,15 +124,19 @@ def nut_assembly_expert(recorder: EpisodeRecorder, variation: Variation, rng: np
     arm.move("lift", [*grasp[:2], table_z + LIFT_ABOVE_TABLE], quat, ignore_collision=False)
 
     quat = top_down_quat(yaw + turn)
-    site, _ = grip_site_frame(env)
-    arm.move("turn", site, quat, ignore_collision=False)
-    check_grasp(env, nut, f"{variation.params['nut']} nut (after the turn)")
+    if variation.params["nut"] == "round":  # the square nut turns on the way to its peg: no keyframe in place
+        site, _ = grip_site_frame(env)
+        arm.move("turn", site, quat, ignore_collision=False)
+        check_grasp(env, nut, f"{variation.params['nut']} nut (after the turn)")
 
-    # Hover the nut centre over the peg, re-measuring the in-hand offset (the nut swings and slips a little).
+    # Hover the nut centre over the peg, re-measuring the in-hand offset (the nut swings and slips a little); a hand
+    # still to turn counts the offset turned with it.
     hover_z = peg_top + HOVER_ABOVE_PEG + NUT_HALF_THICKNESS
     for _ in range(ALIGN_ITERATIONS):
-        site, _ = grip_site_frame(env)
+        site, rot = grip_site_frame(env)
         in_hand = body_pose(env, nut.root_body)[0] - site
+        c, s = np.cos(yaw + turn - site_yaw(rot)), np.sin(yaw + turn - site_yaw(rot))
+        in_hand[:2] = [c * in_hand[0] - s * in_hand[1], s * in_hand[0] + c * in_hand[1]]
         target = np.array([*(peg_pos[:2] - in_hand[:2]), hover_z - in_hand[2]])
         arm.move(
             "align", target, quat, ignore_collision=False, keyframe=False, allow_stall=True, pos_tol=0.03
@@ -133,6 +149,7 @@ def nut_assembly_expert(recorder: EpisodeRecorder, variation: Variation, rng: np
             f"nut not aligned over its peg: {1000 * error:.1f} mm off after {ALIGN_ITERATIONS} tries"
         )
     recorder.mark_keyframe(arm.gripper_open, False)
+    check_grasp(env, nut, f"{variation.params['nut']} nut (over its peg)")
 
     site, _ = grip_site_frame(env)
     in_hand = body_pose(env, nut.root_body)[0] - site

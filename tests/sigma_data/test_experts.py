@@ -151,6 +151,26 @@ def test_expert_failure_is_raised_not_hidden(lift_env):
         arm.move("through_table", [0.0, 0.0, 0.5], [0, 1, 0, 0], ignore_collision=True, max_steps=40)
 
 
+def test_the_square_nut_turns_the_least_and_ends_square_with_its_grasp():
+    """Over handle yaws all round, from the hand pose at reset: the turn squares the nut with its peg (the hang is
+    0 or +-90 degrees, never toward the robot); where the nut's centre does not lie toward the robot from the handle,
+    the turn is at most 45 degrees and the hand ends at its grasp yaw rounded to a multiple of 90 degrees; the wrist
+    stays in range. The round nut keeps hanging within 90 degrees of +x."""
+    from sigma_data.experts.nut_assembly import WRIST_LIMIT, plan_yaws
+
+    hand_yaw, q7 = 0.07, 0.80  # site yaw and joint 7 at reset (rad)
+    for handle in np.radians(np.arange(-180.0, 180.0, 5.0)):
+        yaw, turn = plan_yaws(handle, hand_yaw, q7, "square")
+        hang = np.degrees(handle + np.pi + turn)
+        assert min(abs((hang - d + 180) % 360 - 180) for d in (0, 90, -90)) < 1e-6, np.degrees(handle)
+        assert max(abs(q7 - (y - hand_yaw)) for y in (yaw, yaw + turn)) <= WRIST_LIMIT
+        if abs((np.degrees(handle) + 180) % 360 - 180) > 45:  # the centre is not toward the robot (hang 180)
+            assert abs(turn) <= np.radians(45) + 1e-9, np.degrees(handle)
+            assert abs(yaw + turn - np.radians(90) * round(yaw / np.radians(90))) < 1e-9
+        _, turn = plan_yaws(handle, hand_yaw, q7, "round")
+        assert abs((np.degrees(handle + np.pi + turn) + 180) % 360 - 180) <= 90 + 1e-6
+
+
 @pytest.mark.slow
 @pytest.mark.parametrize(
     ("task_name", "variation_name"),
