@@ -35,6 +35,11 @@ def nut_object(env: Any, nut: str) -> Any:
     return env.nuts[nut_index(env, nut)]
 
 
+def nut_body_id(env: Any, nut: str) -> int:
+    """MuJoCo body id of ``nut`` (its centre; the handle sticks out from it)."""
+    return int(env.obj_body_id[nut_object(env, nut).name])
+
+
 def peg_body_id(env: Any, nut: str) -> int:
     """MuJoCo body id of the peg that matches ``nut``."""
     return int((env.peg1_body_id, env.peg2_body_id)[nut_index(env, nut)])
@@ -48,8 +53,7 @@ def target(env: Any, variation: Variation) -> np.ndarray:
 
 def centre(env: Any, variation: Variation) -> np.ndarray:
     """World position of the centre of the nut the variation names (its body; the handle sticks out from it)."""
-    nut = nut_object(env, variation.params["nut"])
-    return np.array(env.sim.data.body_xpos[env.obj_body_id[nut.name]], dtype=np.float64)
+    return np.array(env.sim.data.body_xpos[nut_body_id(env, variation.params["nut"])], dtype=np.float64)
 
 
 def peg_margin(offset: np.ndarray, turn: float, nut: str) -> float:
@@ -81,7 +85,7 @@ def placement(env: Any, variation: Variation) -> dict[str, int]:
     fit = {"from_peg_mm": round(1000 * float(np.linalg.norm(offset)))}
     turn = 0.0
     if nut == "square":
-        rot = np.asarray(env.sim.data.body_xmat[env.obj_body_id[nut_object(env, nut).name]]).reshape(3, 3)
+        rot = np.asarray(env.sim.data.body_xmat[nut_body_id(env, nut)]).reshape(3, 3)
         turn = (float(np.arctan2(rot[1, 0], rot[0, 0])) + np.pi / 4) % (np.pi / 2) - np.pi / 4
         fit["turned_deg"] = round(float(np.degrees(turn)))
     return fit | {"peg_margin_mm": round(1000 * peg_margin(offset, turn, nut))}
