@@ -2,12 +2,11 @@
 
 Waypoints (ignore_collision label): 8 cm above the grasp point (0) -> the grasp point on the handle, 8 mm
 beyond the handle site away from the nut (1) -> close (1) -> lift the nut
-to 25 cm above the table (0) -> turn the hand about the vertical (the square nut: the least turn that squares
-the nut with its peg; the round nut: so it hangs away from the robot, on the +x side of the handle where the wrist
-allows; the square nut turns on the way to the peg, the round nut in place) (0) -> nut centre over the peg, 4 cm
-above its top, corrected in
-closed loop from the measured nut position (<= 4 iterations, 3 mm; one keyframe) (0) -> down until the nut
-centre is 2.5 cm above the table (1) -> open (1) -> retreat 8 cm up (0).
+to 25 cm above the table (0) -> (round nut only) turn the hand in place about the vertical so the nut hangs away
+from the robot, on the +x side of the handle where the wrist allows (0) -> nut centre over the peg, 4 cm above its
+top, corrected in closed loop from the measured nut position (<= 4 iterations, 3 mm; one keyframe), the square nut
+turning on the way by the least angle that squares it with its peg (0) -> down until the nut centre is 2.5 cm above
+the table (1) -> open (1) -> retreat 8 cm up (0).
 
 The fingers close across the handle (closing axis perpendicular to centre->handle); of the two such grasps
 the one needing the smaller hand rotation overall is taken.
@@ -55,7 +54,7 @@ RETREAT = 0.08
 # nut turns the least: unless its centre lies toward the robot from the handle, the turn is at most 45 degrees and
 # the hand ends at its grasp yaw rounded to a multiple of 90 degrees (the fingers close across the handle, so the
 # hand's yaw and the nut's agree mod 90), a yaw the policy can read from where its hand is (docs/learning.md "The
-# square nut hung toward the robot").
+# square nut hung toward the robot" and "The square nut turns on the way to its peg").
 HANG_DIRECTIONS = {
     "square": np.radians([0.0, 90.0, -90.0]),
     "round": np.radians(np.arange(-90.0, 91.0, 15.0)),
