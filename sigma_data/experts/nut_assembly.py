@@ -26,6 +26,7 @@ from sigma_data.poses import (
     site_yaw,
     top_down_quat,
     wrap_angle,
+    yaw_rotation,
 )
 from sigma_data.tasks.nut_assembly import nut_object, peg_body_id
 
@@ -60,8 +61,7 @@ HANG_DIRECTIONS = {
     "round": np.radians(np.arange(-90.0, 91.0, 15.0)),
 }
 WRIST_LIMIT = 2.6  # rad; keep the Panda's joint 7 (range +-2.897) this far inside its range
-# rad-equivalent cost of not hanging the nut straight out along +x; none for the square nut (the least turn)
-OFF_AXIS_PENALTY = {"square": 0.0, "round": 0.3}
+OFF_AXIS_PENALTY = 0.3  # rad-equivalent cost of not hanging the round nut straight out along +x
 
 
 def wrist_angle(env) -> float:
@@ -78,10 +78,9 @@ def plan_yaws(handle_yaw: float, hand_yaw: float, q7: float, nut: str) -> tuple[
     ``WRIST_LIMIT``. The round nut minimises the largest hand rotation away from ``hand_yaw`` plus a penalty for
     hanging the nut off the +x axis; the square nut the grasp's rotation away from ``hand_yaw`` plus the turn.
     """
-    directions, penalty = HANG_DIRECTIONS[nut], OFF_AXIS_PENALTY[nut]
     base = closest_symmetric_yaw(handle_yaw, hand_yaw, np.pi)
     best, best_cost = None, np.inf
-    for direction in directions:
+    for direction in HANG_DIRECTIONS[nut]:
         turn = wrap_angle(direction - (handle_yaw + np.pi))
         for yaw in (base - np.pi, base, base + np.pi):
             wrist = [q7 - (y - hand_yaw) for y in (yaw, yaw + turn)]
@@ -90,7 +89,9 @@ def plan_yaws(handle_yaw: float, hand_yaw: float, q7: float, nut: str) -> tuple[
             if nut == "square":
                 cost = abs(yaw - hand_yaw) + abs(turn)
             else:
-                cost = max(abs(yaw - hand_yaw), abs(yaw + turn - hand_yaw)) + penalty * abs(direction)
+                cost = max(abs(yaw - hand_yaw), abs(yaw + turn - hand_yaw)) + OFF_AXIS_PENALTY * abs(
+                    direction
+                )
             if cost < best_cost:
                 best, best_cost = (yaw, turn), cost
     if best is None:
@@ -133,9 +134,7 @@ def nut_assembly_expert(recorder: EpisodeRecorder, variation: Variation, rng: np
     hover_z = peg_top + HOVER_ABOVE_PEG + NUT_HALF_THICKNESS
     for _ in range(ALIGN_ITERATIONS):
         site, rot = grip_site_frame(env)
-        in_hand = body_pose(env, nut.root_body)[0] - site
-        c, s = np.cos(yaw + turn - site_yaw(rot)), np.sin(yaw + turn - site_yaw(rot))
-        in_hand[:2] = [c * in_hand[0] - s * in_hand[1], s * in_hand[0] + c * in_hand[1]]
+        in_hand = yaw_rotation(yaw + turn - site_yaw(rot)) @ (body_pose(env, nut.root_body)[0] - site)
         target = np.array([*(peg_pos[:2] - in_hand[:2]), hover_z - in_hand[2]])
         arm.move(
             "align", target, quat, ignore_collision=False, keyframe=False, allow_stall=True, pos_tol=0.03
