@@ -248,9 +248,6 @@ class SigmaConfig(PreTrainedConfig):
     # Off in every preset: NutAssembly alone gained with it, the five-task suite did not (docs/learning.md "Local
     # features in the translation decoder" and "... on the five tasks").
     local_in_decoder: bool = False
-    # With local_in_decoder: the top view's local features for the decoder averaged over its four quarter turns, so
-    # an outline reads alike at four headings (sigma_policy/quarter_turns.py). Off in every preset.
-    local_quarter_turns: bool = False
     # Side views tilted down by this many degrees (sigma_policy/views.py), so that they see over a container's rim,
     # e.g. PickPlace's bins, whose walls hide the bread and the can from horizontal views (docs/learning.md). 0 =
     # RVT's horizontal side views (every preset: 45° and 30° both fitted and scored worse on PickPlace).

@@ -16,8 +16,7 @@ T = ``img_size // patch_size`` patches per side, D = ``attn_dim``, L = language 
    image tokens are first scaled and shifted by an ordered code of the tokens, and with ``proprio_film`` by a
    linear map of the proprio vector (:mod:`sigma_policy.conditioning`).
 6. Decoder: image tokens -> Linear D -> c -> per view conv k at T x T, bilinear x patch_size, conv k, concat ``d0``
-   (and, with ``local_in_decoder``, the local features of step 7, the top view's averaged over its quarter turns
-   with ``local_quarter_turns``), conv 3x3 -> ``u`` (BV, ``final_dim``, H, W) ->
+   (and, with ``local_in_decoder``, the local features of step 7), conv 3x3 -> ``u`` (BV, ``final_dim``, H, W) ->
    conv 3x3 -> translation logits (B, V, H, W).
 7. Heads: [max over tokens (c*V, channel-major), heatmap-weighted sum of ``u`` (V*final_dim, view-major)] -> MLP
    -> 3 x ``num_rotation_bins`` Euler-bin logits, 2 gripper logits, 2 collision logits. Not in the paper, all
@@ -45,10 +44,9 @@ from sigma_policy.conditioning import LanguageFiLM, ProprioFiLM
 from sigma_policy.heatmap import gaussian_heatmaps, heatmap_pool, predicted_uv
 from sigma_policy.layers import LRELU_SLOPE, ConvBlock, DenseBlock, LocalEncoder
 from sigma_policy.network_config import NetworkConfig
-from sigma_policy.quarter_turns import quarter_turn_average
 from sigma_policy.transformer import TransformerLayer
 from sigma_policy.upsample import BilinearUpsample
-from sigma_policy.yaw_scan import TOP_VIEW, YawScanner
+from sigma_policy.yaw_scan import YawScanner
 
 
 def _stack(cfg: NetworkConfig, n: int, cross: bool = False) -> nn.ModuleList:
@@ -182,17 +180,6 @@ class SigmaNetwork(nn.Module):
             tokens = layer(tokens)
         return tokens.reshape(b, v, t * t, -1), d0
 
-    def _decoder_local(self, images: Tensor, local: Tensor) -> Tensor:
-        """The local features (BV, C, H, W) the decoder reads: the heads' own, or with ``local_quarter_turns`` the
-        top view's averaged over its quarter turns (:func:`~sigma_policy.quarter_turns.quarter_turn_average`)."""
-        if not self.cfg.local_quarter_turns:
-            return local
-        b, v = images.shape[:2]
-        top = quarter_turn_average(self.local_encoder, images[:, TOP_VIEW]).to(local.dtype)
-        per_view = local.reshape(b, v, *local.shape[1:])
-        views = [per_view[:, :TOP_VIEW], top[:, None], per_view[:, TOP_VIEW + 1 :]]
-        return torch.cat(views, dim=1).reshape(local.shape)
-
     def encode_goal(self, goal_images: Tensor) -> Tensor:
         """Goal render (B, V, C_in, H, W) -> phi(g) (B, D): shared encoder, own PE, per-view mean, projection."""
         if self.contrastive is None:
@@ -272,7 +259,7 @@ class SigmaNetwork(nn.Module):
             if self.local_encoder is not None
             else None
         )
-        skips = [x, d0, self._decoder_local(images, local)] if cfg.local_in_decoder else [x, d0]
+        skips = [x, d0, local] if cfg.local_in_decoder else [x, d0]
         u = self.final(torch.cat(skips, dim=1))  # (BV, final_dim, H, W)
         trans = self.trans_decoder(u).reshape(b, cfg.num_views, cfg.img_size, cfg.img_size)
 

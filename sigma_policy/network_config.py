@@ -73,10 +73,6 @@ class NetworkConfig:
     # convolution sees one pixel), so the heatmap can read an outline around each pixel, e.g. which side of a nut
     # its handle is on. Needs ``local_channels`` > 0.
     local_in_decoder: bool = False
-    # The top view's local features that enter the decoder are averaged over the view's four quarter turns
-    # (sigma_policy/quarter_turns.py), so an outline gives the same features at four headings, e.g. a nut's handle
-    # wherever it points; the heads keep the plain ones. Needs ``local_in_decoder``.
-    local_quarter_turns: bool = False
     # Width (pixels) of the Gaussian that pools the local features: in training the target heatmap has it, at
     # inference the same Gaussian sits at the predicted 3D point's projections, so the heads see the same pooling.
     head_pool_sigma: float = 1.5
@@ -107,8 +103,6 @@ class NetworkConfig:
             raise ValueError("local_channels must be >= 0, with at least one dilation when > 0")
         if self.local_in_decoder and not self.local_channels:
             raise ValueError("local_in_decoder needs local_channels > 0")
-        if self.local_quarter_turns and not self.local_in_decoder:
-            raise ValueError("local_quarter_turns needs local_in_decoder")
         if self.yaw_scan_px < 0 or (self.yaw_scan_px and (self.yaw_scan_px % 2 or self.yaw_scan_px < 8)):
             raise ValueError(f"yaw_scan_px must be 0 (off) or an even number >= 8, got {self.yaw_scan_px}")
         if self.yaw_scan_px and self.num_rotation_bins % 2:
