@@ -69,6 +69,11 @@ def site_yaw(rot: np.ndarray) -> float:
     return float(np.arctan2(-x_axis[0], x_axis[1]))
 
 
+def object_yaw(rot: np.ndarray) -> float:
+    """Yaw (rad) of a body's x axis in the world xy plane."""
+    return float(np.arctan2(rot[1, 0], rot[0, 0]))
+
+
 def wrap_angle(angle: float) -> float:
     """Wrap an angle to [-pi, pi)."""
     return float((angle + np.pi) % (2 * np.pi) - np.pi)

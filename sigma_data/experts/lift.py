@@ -11,7 +11,14 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from sigma_data.experts.base import EpisodeRecorder, WaypointArm, check_grasp
-from sigma_data.poses import body_pose, closest_symmetric_yaw, grip_site_frame, site_yaw, top_down_quat
+from sigma_data.poses import (
+    body_pose,
+    closest_symmetric_yaw,
+    grip_site_frame,
+    object_yaw,
+    site_yaw,
+    top_down_quat,
+)
 
 if TYPE_CHECKING:
     from sigma_data.tasks.spec import Variation
@@ -19,11 +26,6 @@ if TYPE_CHECKING:
 PREGRASP_HEIGHT = 0.08
 GRASP_OFFSET = -0.003
 LIFT_HEIGHT = 0.15
-
-
-def object_yaw(rot: np.ndarray) -> float:
-    """Yaw (rad) of a body's x axis in the world xy plane."""
-    return float(np.arctan2(rot[1, 0], rot[0, 0]))
 
 
 def cube_grasp_quat(env, cube_rot: np.ndarray) -> np.ndarray:

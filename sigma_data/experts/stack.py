@@ -16,8 +16,15 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from sigma_data.experts.base import EpisodeRecorder, WaypointArm, check_grasp
-from sigma_data.experts.lift import GRASP_OFFSET, PREGRASP_HEIGHT, object_yaw
-from sigma_data.poses import body_pose, closest_symmetric_yaw, grip_site_frame, site_yaw, top_down_quat
+from sigma_data.experts.lift import GRASP_OFFSET, PREGRASP_HEIGHT
+from sigma_data.poses import (
+    body_pose,
+    closest_symmetric_yaw,
+    grip_site_frame,
+    object_yaw,
+    site_yaw,
+    top_down_quat,
+)
 from sigma_data.tasks.stack import cube, cube_half_size
 
 if TYPE_CHECKING:

@@ -10,6 +10,8 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
+from sigma_data.poses import body_pose, object_yaw
+
 if TYPE_CHECKING:
     from sigma_data.tasks.spec import Variation
 
@@ -35,11 +37,6 @@ def nut_object(env: Any, nut: str) -> Any:
     return env.nuts[nut_index(env, nut)]
 
 
-def nut_body_id(env: Any, nut: str) -> int:
-    """MuJoCo body id of ``nut`` (its centre; the handle sticks out from it)."""
-    return int(env.obj_body_id[nut_object(env, nut).name])
-
-
 def peg_body_id(env: Any, nut: str) -> int:
     """MuJoCo body id of the peg that matches ``nut``."""
     return int((env.peg1_body_id, env.peg2_body_id)[nut_index(env, nut)])
@@ -53,7 +50,7 @@ def target(env: Any, variation: Variation) -> np.ndarray:
 
 def centre(env: Any, variation: Variation) -> np.ndarray:
     """World position of the centre of the nut the variation names (its body; the handle sticks out from it)."""
-    return np.array(env.sim.data.body_xpos[nut_body_id(env, variation.params["nut"])], dtype=np.float64)
+    return body_pose(env, nut_object(env, variation.params["nut"]).root_body)[0]
 
 
 def peg_margin(offset: np.ndarray, turn: float, nut: str) -> float:
@@ -79,14 +76,14 @@ def placement(env: Any, variation: Variation) -> dict[str, int]:
       if something pushes it across).
     """
     nut = variation.params["nut"]
-    offset = (centre(env, variation) - env.sim.data.body_xpos[peg_body_id(env, nut)])[:2]
+    position, rot = body_pose(env, nut_object(env, nut).root_body)
+    offset = (position - env.sim.data.body_xpos[peg_body_id(env, nut)])[:2]
     if np.linalg.norm(offset) > PEG_NEAR_M:
         return {}
     fit = {"from_peg_mm": round(1000 * float(np.linalg.norm(offset)))}
     turn = 0.0
     if nut == "square":
-        rot = np.asarray(env.sim.data.body_xmat[nut_body_id(env, nut)]).reshape(3, 3)
-        turn = (float(np.arctan2(rot[1, 0], rot[0, 0])) + np.pi / 4) % (np.pi / 2) - np.pi / 4
+        turn = (object_yaw(rot) + np.pi / 4) % (np.pi / 2) - np.pi / 4
         fit["turned_deg"] = round(float(np.degrees(turn)))
     return fit | {"peg_margin_mm": round(1000 * peg_margin(offset, turn, nut))}
 
