@@ -1,7 +1,7 @@
 """Why a ``sigma-eval`` episode failed, read from its keyframe trace and the scene.
 
-:func:`failure_reason` turns an episode's trace into one short, task-independent reason (wrong object, grasp
-missed, dropped, repeats, not reached, timeout); :func:`failure_kind` is the kind a table counts. The scene
+:func:`failure_reason` turns an episode's trace into one short, task-independent reason (wrong object, off the
+handle, grasp missed, dropped, repeats, not reached, timeout); :func:`failure_kind` is the kind a table counts. The scene
 probes the evaluation worker records at each keyframe live here too: :func:`nearest_variation` (which object the
 hand is over), :func:`grasp_fit` (how the object sits between the fingers), :func:`handle_fit` (how far round a
 handled object from its handle the hand is), :func:`placement_fit` (how the object sits over where it must end)
@@ -23,6 +23,12 @@ EMPTY_GRIP_GAP_M = 0.01
 # turns in 5° bins: the bound lies between one bin and two, so a one-bin jitter is a repeat whatever the rounding.
 REPEAT_TOLERANCE_M = 0.01
 REPEAT_TOLERANCE_DEG = 7.5
+# A handled object (the nuts) grasped further round from its handle than this held it by its body. Both nuts'
+# handles are bars 31.75 mm wide (robosuite's square-nut.xml and round-nut.xml); the open fingers (78 mm) straddle
+# one only while its centre line passes within 39 - 15.9 = 23 mm of the grip site, 25° round at the expert's grasp
+# 55 mm from the centre. Inside that the closing fingers centre the bar and the nut sits in the hand as the expert
+# holds it; outside, the hand holds the ring and the nut hangs off to one side of where the policy places it.
+OFF_HANDLE_DEG = 25
 
 
 def failure_reason(result: EpisodeResult, max_keyframes: int) -> str | None:
@@ -31,7 +37,10 @@ def failure_reason(result: EpisodeResult, max_keyframes: int) -> str | None:
     In order of precedence: ``error: ...`` (an exception); ``wrong object: did <variation>`` (the scene ended in
     another variation's success state: the policy did the other instruction); ``wrong object at keyframe k: went
     for <variation>`` (the gripper first closed nearer another variation's object than the instructed one, see
-    :func:`nearest_variation`: the policy did not ground the instruction); ``grasp missed at keyframe k`` (the
+    :func:`nearest_variation`: the policy did not ground the instruction); ``grasped off the handle at keyframe k
+    (...); then <what followed>`` (a handled object held by its body, more than ``OFF_HANDLE_DEG`` round from its
+    handle, :func:`handle_fit`; the rest of the trace then decides what followed, usually a drop beside the goal);
+    ``grasp missed at keyframe k`` (the
     gripper closed on nothing: finger gap below 1 cm once the close has finished, :func:`_settled_gap`; where the
     task's objects have ``points``, followed by how the object sat between the open fingers, :func:`grasp_fit`:
     wider than the 78 mm gap means the hand's yaw was wrong, far off centre its position; where they have a handle,
@@ -55,30 +64,38 @@ def failure_reason(result: EpisodeResult, max_keyframes: int) -> str | None:
     if result.other_variation is not None:
         return f"wrong object: did {result.other_variation}"
     held = False
+    off_handle = (
+        ""  # "grasped off the handle at keyframe k (...); then ", once the hand holds a nut by its ring
+    )
     for i, step in enumerate(result.trace):
         k = step["keyframe"]
         nearest = step.get("nearest")
         if step["closed_now"] and not held and nearest is not None and nearest != result.variation:
             return f"wrong object at keyframe {k}: went for {nearest}"
         if step["closed_now"] and _settled_gap(result.trace, i) < EMPTY_GRIP_GAP_M:
-            return f"grasp missed at keyframe {k}" + _fit_text(result.trace, i)
+            return off_handle + f"grasp missed at keyframe {k}" + _fit_text(result.trace, i)
+        if step["closed_now"] and not held and abs(_handle_angle(result.trace, i)) > OFF_HANDLE_DEG:
+            off_handle = f"grasped off the handle at keyframe {k}" + _fit_text(result.trace, i) + "; then "
         held = held or step["closed_now"]
         if held and step["opened_now"]:
-            return f"dropped at keyframe {k}" + _placement_text(result.trace, i)
+            return off_handle + f"dropped at keyframe {k}" + _placement_text(result.trace, i)
     for prev, step in zip(result.trace, result.trace[1:], strict=False):
         same_place = math.dist(prev["action"][:3], step["action"][:3]) < REPEAT_TOLERANCE_M
         same_turn = (
             geodesic_deg(np.array(prev["action"][3:7]), np.array(step["action"][3:7])) < REPEAT_TOLERANCE_DEG
         )
         if same_place and same_turn and prev["action"][7] == step["action"][7]:
-            return f"repeats keyframe {prev['keyframe']}"
+            return off_handle + f"repeats keyframe {prev['keyframe']}"
     for step in result.trace:
         if step["arm_status"] != "converged":
-            return f"keyframe {step['keyframe']} not reached ({step['arm_status']})" + _progress_text(
-                result.trace
+            return (
+                off_handle
+                + f"keyframe {step['keyframe']} not reached ({step['arm_status']})"
+                + _progress_text(result.trace)
             )
     return (
-        f"timeout after {len(result.trace)} keyframes"
+        off_handle
+        + f"timeout after {len(result.trace)} keyframes"
         + ("" if len(result.trace) >= max_keyframes else " (stopped)")
         + _progress_text(result.trace)
     )
@@ -105,6 +122,13 @@ def _placement_text(trace: list[dict], i: int) -> str:
         words, _, unit = name.rpartition("_")
         parts.append(f"{words.replace('_', ' ')} {value}" + ("°" if unit == "deg" else f" {unit}"))
     return " (" + ", ".join(parts) + ")"
+
+
+def _handle_angle(trace: list[dict], i: int) -> float:
+    """How far round its object from its handle (degrees) the hand was for the close at ``trace[i]``
+    (:func:`handle_fit`, from the grasp pose before it as :func:`_fit_text` reads it); 0 where neither recorded it."""
+    handle = _before_or_at(trace, i, "round_from_handle_deg")
+    return 0.0 if handle is None else float(handle["round_from_handle_deg"])
 
 
 def _fit_text(trace: list[dict], i: int) -> str:
@@ -260,9 +284,20 @@ def other_variation_done(env) -> str | None:
     return None
 
 
-FAILURE_KINDS = ("error", "wrong object", "grasp missed", "dropped", "repeats", "not reached", "timeout")
+FAILURE_KINDS = (
+    "error",
+    "wrong object",
+    "off the handle",
+    "grasp missed",
+    "dropped",
+    "repeats",
+    "not reached",
+    "timeout",
+)
 
 
 def failure_kind(reason: str) -> str:
-    """``grasp missed at keyframe 3`` -> ``grasp missed``: the kind of a :func:`failure_reason`."""
+    """``grasp missed at keyframe 3`` -> ``grasp missed``: the kind of a :func:`failure_reason`, the first of
+    :data:`FAILURE_KINDS` it names (``grasped off the handle at keyframe 3 (...); then dropped at keyframe 7`` is
+    ``off the handle``: the first thing that went wrong)."""
     return next((kind for kind in FAILURE_KINDS if kind in reason), reason)

@@ -144,6 +144,43 @@ def test_a_missed_grasp_of_a_handled_object_says_how_far_round_from_its_handle()
     assert failure_kind(reason) == "grasp missed"
 
 
+def test_holding_a_nut_by_its_ring_is_named_before_what_followed():
+    """A held grasp more than 25° round from the handle is the first thing that went wrong; what followed is kept.
+    Within 25° the closing fingers centre the handle: a later drop is a drop."""
+    from pipelines.failures import OFF_HANDLE_DEG
+
+    placed = {"placement": {"from_peg_mm": 89, "peg_margin_mm": -78}}
+
+    def trace(angle):
+        return [
+            _step(1, PREGRASP),
+            _step(2, GRASP) | {"round_from_handle_deg": angle, "from_centre_mm": 46},
+            _step(3, GRASP, 0.0, closed=True, gap=0.03),
+            _step(4, LIFT, 0.0) | placed,
+            _step(5, LIFT, 1.0, opened=True),
+        ]
+
+    reason = failure_reason(_result(trace(-88)), 12)
+    assert reason == (
+        "grasped off the handle at keyframe 3 (-88° round the object from its handle, 46 mm from its centre);"
+        " then dropped at keyframe 5 (from peg 89 mm, peg margin -78 mm)"
+    )
+    assert failure_kind(reason) == "off the handle"
+    assert (
+        failure_reason(_result(trace(OFF_HANDLE_DEG)), 12)
+        == "dropped at keyframe 5 (from peg 89 mm, peg margin -78 mm)"
+    )
+    # held by the ring and never let go: what followed is the timeout
+    never_opened = trace(120)[:4]
+    assert failure_reason(_result(never_opened), 4).startswith(
+        "grasped off the handle at keyframe 3 (120° round"
+    )
+    assert failure_reason(_result(never_opened), 4).endswith("; then timeout after 4 keyframes")
+    # a close on nothing stays a missed grasp whichever way round it came down
+    missed = [*trace(120)[:2], _step(3, GRASP, 0.0, closed=True, gap=0.002)]
+    assert failure_kind(failure_reason(_result(missed), 12)) == "grasp missed"
+
+
 def test_a_drop_says_how_the_object_sat_over_its_goal():
     """A nut let go above its peg says, from the keyframe it was let go from, how far off the peg it was; a drop
     away from any goal says nothing more."""
