@@ -86,6 +86,9 @@ class DiagnoseConfig:
     # For checkpoints trained with a weight average (the policy's `ema_decay`): diagnose the average (true) or the
     # trained weights (false); None: what the checkpoint acts with (the average).
     act_with_ema: bool | None = None
+    # How the views' heatmaps fuse into the predicted point (the policy's `heatmap_fusion`: sum or product,
+    # sigma_policy/heatmap.py); None: the checkpoint's own.
+    heatmap_fusion: str | None = None
     # Where diagnostics.json, curves.png and curves.rrd go (default: <run>/diagnostics or <checkpoint>/..).
     output_dir: Path | None = None
     # Keep the scores of checkpoints that diagnostics.json already holds for the same weights (by content), scoring
@@ -161,6 +164,8 @@ NOT_SCORING = frozenset({"run", "checkpoint", "batch_size", "device", "output_di
 def scoring_options(cfg: DiagnoseConfig) -> dict[str, Any]:
     """The options that change a checkpoint's scores (every field but ``NOT_SCORING``), paths as strings."""
     values = {f.name: getattr(cfg, f.name) for f in fields(cfg) if f.name not in NOT_SCORING}
+    if values["heatmap_fusion"] is None:  # reports written before the option keep matching
+        del values["heatmap_fusion"]
     return {name: str(v) if isinstance(v, Path) else v for name, v in values.items()}
 
 
@@ -186,6 +191,10 @@ def run_diagnose(cfg: DiagnoseConfig) -> dict[str, Any]:
 
     if (cfg.run is None) == (cfg.checkpoint is None):
         raise ValueError("give exactly one of --run (a lerobot-train output dir) or --checkpoint")
+    from sigma_policy.heatmap import HEATMAP_FUSIONS
+
+    if cfg.heatmap_fusion is not None and cfg.heatmap_fusion not in HEATMAP_FUSIONS:
+        raise ValueError(f"--heatmap_fusion must be one of {HEATMAP_FUSIONS}, got '{cfg.heatmap_fusion}'")
     ckpts = run_checkpoints(cfg.run) if cfg.run is not None else [(-1, Path(cfg.checkpoint))]
     out_dir = cfg.output_dir or (
         Path(cfg.run) / "diagnostics" if cfg.run else Path(cfg.checkpoint).parent / "diagnostics"
@@ -215,6 +224,8 @@ def run_diagnose(cfg: DiagnoseConfig) -> dict[str, Any]:
         policy, pre, _ = load_policy(ckpt, cfg.device)
         if cfg.act_with_ema is not None:
             policy.config.act_with_ema = cfg.act_with_ema
+        if cfg.heatmap_fusion is not None:
+            policy.config.heatmap_fusion = cfg.heatmap_fusion
         scores = diagnose_checkpoint(policy, pre, sets, cfg.batch_size)
         saved[step, digest] = {"step": step, "weights_sha256": digest, **scores}
     entries = [{**saved[step, d], "path": str(ckpt)} for (step, ckpt), d in zip(ckpts, digests, strict=True)]

@@ -71,6 +71,9 @@ class EvalConfig:
     # The test-time yaw ensemble's extra angles (degrees; the policy's `tta_yaw_deg`, sigma_policy/test_time.py);
     # None: the checkpoint's own (off unless it was trained with them set).
     tta_yaw_deg: list[float] | None = None
+    # How the views' heatmaps are fused into the 3D point (the policy's `heatmap_fusion`: sum or product,
+    # sigma_policy/heatmap.py); None: the checkpoint's own (sum unless it was trained with it set).
+    heatmap_fusion: str | None = None
     # Instruction-contrastive decoding's weight (the policy's `instruction_contrast`, in [0, 1);
     # sigma_policy/instruction_contrast.py); None: the checkpoint's own (0, off, unless it was trained with it set).
     # It needs the policy's instruction -> task map, which checkpoints saved before 2026-11-29 lack: it is then read
@@ -233,6 +236,10 @@ def run_eval(cfg: EvalConfig) -> dict:
 
         bins = json.loads((Path(cfg.checkpoint) / "config.json").read_text()).get("num_rotation_bins", 72)
         check_yaw_angles(cfg.tta_yaw_deg, bins)  # ValueError naming the angles
+    from sigma_policy.heatmap import HEATMAP_FUSIONS
+
+    if cfg.heatmap_fusion is not None and cfg.heatmap_fusion not in HEATMAP_FUSIONS:
+        raise ValueError(f"--heatmap_fusion must be one of {HEATMAP_FUSIONS}, got '{cfg.heatmap_fusion}'")
     if cfg.instruction_contrast:
         _check_instruction_contrast(cfg)
     if cfg.act_with_ema is not None:
@@ -283,6 +290,8 @@ def _resume(cfg: EvalConfig, jobs: list[Job]) -> tuple[EpisodeLog, list[EpisodeR
         header["act_with_ema"] = cfg.act_with_ema
     if cfg.regrasps:  # likewise
         header["regrasps"] = cfg.regrasps
+    if cfg.heatmap_fusion is not None:  # likewise
+        header["heatmap_fusion"] = cfg.heatmap_fusion
     if cfg.ensemble:  # the header of a single policy's log stays as it was
         header["ensemble_sha256"] = [sha256(Path(m) / "model.safetensors") for m in cfg.ensemble]
     log = EpisodeLog(cfg.output_dir, header)

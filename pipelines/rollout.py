@@ -82,6 +82,8 @@ class RolloutWorker:
             self.policy.config.tta_yaw_deg = [float(a) for a in cfg.tta_yaw_deg]
         if cfg.act_with_ema is not None:  # checked in run_eval
             self.policy.config.act_with_ema = cfg.act_with_ema
+        if cfg.heatmap_fusion is not None:  # checked in run_eval
+            self.policy.config.heatmap_fusion = cfg.heatmap_fusion
         if cfg.instruction_contrast is not None:  # checked in run_eval
             self.policy.config.instruction_contrast = cfg.instruction_contrast
             if not self.policy.config.instruction_tasks and cfg.train_dataset is not None:

@@ -77,6 +77,7 @@ from sigma_data.contract import (  # the data contract: the only sigma_data modu
     rgb_key,
 )
 from sigma_policy.compat import drop_retired
+from sigma_policy.heatmap import HEATMAP_FUSIONS
 from sigma_policy.instruction_contrast import check_contrast_weight
 from sigma_policy.lamb import LambConfig
 from sigma_policy.network_config import NetworkConfig
@@ -269,6 +270,9 @@ class SigmaConfig(PreTrainedConfig):
     # averaged. [] = off (every preset); each angle adds one inference pass.
     tta_yaw_deg: list[float] = field(default_factory=list)
     tta_radius_m: float = 0.02
+    # How the views' heatmaps vote for the 3D point at inference (inference only; sigma_policy/heatmap.py,
+    # docs/method.md §14.6): "sum" of their probabilities (RVT; every preset) or "product" (every view must agree).
+    heatmap_fusion: str = "sum"
     # Instruction-contrastive decoding (inference only; sigma_policy/instruction_contrast.py): each view's heatmap
     # under the instruction is divided by the ``instruction_contrast``-th power of the mean heatmap over every
     # instruction of its task (``instruction_tasks``), so a place all of them point at loses to the place only this
@@ -391,6 +395,8 @@ class SigmaConfig(PreTrainedConfig):
             if not _is_box(box):
                 raise ValueError(f"policy.instruction_bounds[{instruction!r}] must be a box of 6, got {box}")
         self.tta_yaw_deg = check_yaw_angles(self.tta_yaw_deg, self.num_rotation_bins)
+        if self.heatmap_fusion not in HEATMAP_FUSIONS:
+            raise ValueError(f"heatmap_fusion must be one of {HEATMAP_FUSIONS}, got '{self.heatmap_fusion}'")
         self.instruction_contrast = check_contrast_weight(self.instruction_contrast)
         if not self.instruction_negative_weight >= 0.0:
             raise ValueError(

@@ -11,7 +11,9 @@ view (``(1 +- g_k) S / 2 = k + 0.5`` or ``S - k - 0.5``), so RVT's 4-neighbour i
 one pixel, and each view's score depends on only two of the three voxel indices. The score of voxel ``(a, b, c)``
 is the mean over views of the per-view softmax probabilities at its pixels, evaluated by broadcasting
 ``top[a, b] + front[a, c] + back[a, c] + left[b, c] + right[b, c]`` in chunks; the argmax voxel centre is the
-prediction. Never a cached 10 M-point grid; peak memory about ``B * chunk * S^2`` floats.
+prediction. Never a cached 10 M-point grid; peak memory about ``B * chunk * S^2`` floats. With
+``fusion="product"`` the per-view maps are log-probabilities instead, so the same sum is the log of the product of
+the views' probabilities (docs/method.md §14.6).
 
 Sub-voxel refinement (``refine_px > 0``, not in RVT): the voxel centre quantises each axis to ``box / S`` (0.94 cm
 for the ``small`` preset's 64² views of a 0.6 m box). Each axis is seen by two of the three view-pair score maps;
@@ -39,6 +41,7 @@ from torch import Tensor
 from sigma_policy.views import VIEW_AXES, project_points, tilt_slope
 
 __all__ = [
+    "HEATMAP_FUSIONS",
     "gaussian_heatmaps",
     "heads_at_point",
     "heatmap_pool",
@@ -46,6 +49,10 @@ __all__ = [
     "predicted_uv",
     "voxel_centres",
 ]
+
+# How the views' heatmaps are fused into one score per voxel: "sum" of probabilities (RVT) or "product" (the sum of
+# log-probabilities; sigma addition, docs/method.md §14.6).
+HEATMAP_FUSIONS: tuple[str, ...] = ("sum", "product")
 
 
 def gaussian_heatmaps(uv: Tensor, img_size: int, sigma: float = 1.5) -> Tensor:
@@ -101,16 +108,27 @@ def _centroid_offset(profile: Tensor, centre: Tensor, radius: int) -> Tensor:
 
 
 def heatmap_to_cube_point(
-    logits: Tensor, img_size: int, chunk: int = 16, refine_px: int = 0, side_tilt_deg: float = 0.0
+    logits: Tensor,
+    img_size: int,
+    chunk: int = 16,
+    refine_px: int = 0,
+    side_tilt_deg: float = 0.0,
+    fusion: str = "sum",
 ) -> Tensor:
-    """Factorised argmax of the mean per-view softmax over the ``S^3`` voxel grid: logits ``(B, V, H, W)`` ->
-    cube point ``(B, 3)``: the argmax voxel centre, refined below a voxel when ``refine_px > 0`` (module
-    docstring). ``chunk`` x-slices are scored at a time; ``side_tilt_deg`` is the views' tilt."""
+    """Factorised argmax over the ``S^3`` voxel grid of the views' fused score: logits ``(B, V, H, W)`` -> cube
+    point ``(B, 3)``: the argmax voxel centre, refined below a voxel when ``refine_px > 0`` (module docstring).
+    ``fusion`` (:data:`HEATMAP_FUSIONS`): ``"sum"`` scores a voxel by the sum of its projections' softmax
+    probabilities (RVT), ``"product"`` by the sum of their log-probabilities, i.e. their product: every view must
+    agree, so four side views sure of a wrong place no longer outvote a top view sure of the right one.
+    ``chunk`` x-slices are scored at a time; ``side_tilt_deg`` is the views' tilt."""
     B, V, H, W = logits.shape
     S = img_size
     if (len(VIEW_AXES), S, S) != (V, H, W):
         raise ValueError(f"logits must be (B, {len(VIEW_AXES)}, {S}, {S}), got {tuple(logits.shape)}")
-    prob = torch.softmax(logits.float().flatten(2), dim=-1).view(B, V, S, S)
+    if fusion not in HEATMAP_FUSIONS:
+        raise ValueError(f"heatmap fusion must be one of {HEATMAP_FUSIONS}, got '{fusion}'")
+    normalise = torch.softmax if fusion == "sum" else torch.log_softmax
+    prob = normalise(logits.float().flatten(2), dim=-1).view(B, V, S, S)
     if tilt_slope(side_tilt_deg) > 0.0:
         return _projected_grid_point(prob, chunk, refine_px, side_tilt_deg)
     pair_sum: dict[tuple[int, int], Tensor] = {}
@@ -220,21 +238,23 @@ def _projected_grid_point(prob: Tensor, chunk: int, refine_px: int, side_tilt_de
     return point + torch.stack(shifts, -1) * (2 / S)
 
 
-def predicted_uv(logits: Tensor, side_tilt_deg: float = 0.0) -> Tensor:
+def predicted_uv(logits: Tensor, side_tilt_deg: float = 0.0, fusion: str = "sum") -> Tensor:
     """Pixel coordinates ``(B, V, 2)`` of the projections of the 3D point the translation logits ``(B, V, H, W)``
-    predict (:func:`heatmap_to_cube_point`): the views agree on one point, as the training
+    predict (:func:`heatmap_to_cube_point` with ``fusion``): the views agree on one point, as the training
     target's projections do, even where one view's own peak lies elsewhere."""
     size = logits.shape[-1]
-    point = heatmap_to_cube_point(logits, size, side_tilt_deg=side_tilt_deg)
+    point = heatmap_to_cube_point(logits, size, side_tilt_deg=side_tilt_deg, fusion=fusion)
     return project_points(point[:, None].to(logits.dtype), size, side_tilt_deg)[0][:, 0]
 
 
-def heads_at_point(logits: Tensor, side_tilt_deg: float, sigma_px: float) -> dict[str, Tensor]:
+def heads_at_point(
+    logits: Tensor, side_tilt_deg: float, sigma_px: float, fusion: str = "sum"
+) -> dict[str, Tensor]:
     """The network's ``head_heatmap`` and ``head_uv`` arguments that run its heads at the point the translation
     logits ``(B, V, H, W)`` predict (:func:`predicted_uv`): pooled there with a Gaussian of ``sigma_px`` pixels, as
     training pools them at the target, and the yaw scan centred there. For a second run of the heads after the
-    logits were changed (instruction contrast, ensembles)."""
-    uv = predicted_uv(logits, side_tilt_deg)
+    logits were changed (instruction contrast, ensembles); ``fusion`` as in :func:`heatmap_to_cube_point`."""
+    uv = predicted_uv(logits, side_tilt_deg, fusion)
     return {"head_heatmap": gaussian_heatmaps(uv, logits.shape[-1], sigma=sigma_px), "head_uv": uv}
 
 

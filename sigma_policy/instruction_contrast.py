@@ -112,6 +112,7 @@ def contrast_instructions(
     weight: float,
     heads_sigma_px: float,
     side_tilt_deg: float = 0.0,
+    fusion: str = "sum",
 ) -> NetworkOutput:
     """``out`` with its translation logits contrasted against the task's other instructions
     (:func:`contrasted_logits`) and its heads run again at the contrasted point, pooled there (a Gaussian of
@@ -127,7 +128,7 @@ def contrast_instructions(
     if not others:
         return out
     trans = contrasted_logits(out.trans, torch.stack(others), torch.stack(valid), weight)
-    pooled = run(tasks, **heads_at_point(trans, side_tilt_deg, heads_sigma_px))
+    pooled = run(tasks, **heads_at_point(trans, side_tilt_deg, heads_sigma_px, fusion))
     pooled.trans = trans
     return pooled
 

@@ -351,9 +351,14 @@ class SigmaPolicy(PreTrainedPolicy):
                 cfg.instruction_contrast,
                 cfg.gt_heatmap_sigma,
                 cfg.side_tilt_deg,
+                cfg.heatmap_fusion,
             )
         point_cube = heatmap_to_cube_point(
-            out.trans.float(), cfg.img_size, refine_px=cfg.heatmap_refine_px, side_tilt_deg=cfg.side_tilt_deg
+            out.trans.float(),
+            cfg.img_size,
+            refine_px=cfg.heatmap_refine_px,
+            side_tilt_deg=cfg.side_tilt_deg,
+            fusion=cfg.heatmap_fusion,
         )
         point = cube_to_world(point_cube, bounds)
         rotation_probs = torch.softmax(out.rot_logits.float(), -1)
@@ -385,7 +390,7 @@ class SigmaPolicy(PreTrainedPolicy):
             m._run_network(views, tasks, batch, bounds, transforms=transforms) for m in policies[1:]
         ]
         trans = mean_probability_logits([o.trans for o in outs], event_dims=2)  # per view
-        heads = heads_at_point(trans, cfg.side_tilt_deg, cfg.gt_heatmap_sigma)
+        heads = heads_at_point(trans, cfg.side_tilt_deg, cfg.gt_heatmap_sigma, cfg.heatmap_fusion)
         pooled = [
             p._run_network(views, tasks, batch, bounds, transforms=transforms, **heads) for p in policies
         ]
@@ -571,4 +576,5 @@ class SigmaPolicy(PreTrainedPolicy):
                 proprio=proprio,
                 head_heatmap=head_heatmap if network.local_encoder is not None else None,
                 head_uv=head_uv,
+                fusion=self.config.heatmap_fusion,
             )

@@ -197,6 +197,7 @@ class SigmaNetwork(nn.Module):
         proprio: Tensor | None = None,
         head_heatmap: Tensor | None = None,
         head_uv: Tensor | None = None,
+        fusion: str = "sum",
     ) -> NetworkOutput:
         """Run the network.
 
@@ -213,6 +214,7 @@ class SigmaNetwork(nn.Module):
             head_uv: (B, V, 2) pixel of the keyframe position where the yaw scan's crop is centred (training: the
                 target's projections); None = the predicted 3D point's projections (inference). Only with
                 ``yaw_scan_px``.
+            fusion: how the views' heatmaps fuse into that predicted point (``heatmap_to_cube_point``).
         """
         cfg = self.cfg
         b = images.shape[0]
@@ -270,7 +272,7 @@ class SigmaNetwork(nn.Module):
         lifted = (self.local_encoder is not None and head_heatmap is None) or (
             self.yaw_scanner is not None and head_uv is None
         )
-        pred_uv = predicted_uv(trans.detach(), cfg.side_tilt_deg) if lifted else None
+        pred_uv = predicted_uv(trans.detach(), cfg.side_tilt_deg, fusion) if lifted else None
         if local is not None:
             weights = (
                 gaussian_heatmaps(pred_uv, cfg.img_size, sigma=cfg.head_pool_sigma)

@@ -105,6 +105,7 @@ def test_nan_weights_are_named(checkpoint, tmp_path):
     [
         ("--tta_yaw_deg=[15,7]", "multiples of the 5° rotation bins, got [7.0]"),
         ("--act_with_ema=false", "was trained without a weight average (ema_decay 0)"),
+        ("--heatmap_fusion=mean", "--heatmap_fusion must be one of ('sum', 'product'), got 'mean'"),
     ],
 )
 def test_a_test_time_option_the_checkpoint_cannot_take_is_one_clear_error_before_any_episode(

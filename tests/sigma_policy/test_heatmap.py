@@ -92,3 +92,47 @@ def test_back_projection_matches_brute_force_grid() -> None:
 def test_bad_shape_raises() -> None:
     with pytest.raises(ValueError, match="logits"):
         heatmap_to_cube_point(torch.zeros(1, 4, 8, 8), 8)
+
+
+@pytest.mark.parametrize("tilt", [0.0, 30.0])
+def test_product_fusion_lets_a_sure_top_view_overrule_side_views(tilt: float) -> None:
+    """The first grasp of NutAssembly (docs/method.md §14.6): the top view is sure of the handle, the four side
+    views, which see the nut edge-on, are sure of a place on its ring 10 cm away, and each side view also gives the
+    handle a little. Summed probabilities follow the four side views; their product takes the one place every view
+    allows."""
+    S = 48
+    renderer = VirtualViewRenderer(img_size=S, side_tilt_deg=tilt)
+    handle, ring = torch.tensor([[[0.2, 0.1, -0.5]]]), torch.tensor([[[0.2, -0.2, -0.5]]])
+    at_handle = gaussian_heatmaps(renderer.project(handle)[:, 0], S)
+    at_ring = gaussian_heatmaps(renderer.project(ring)[:, 0], S)
+    views = 0.8 * at_ring + 0.2 * at_handle
+    views[:, 0] = at_handle[:, 0]
+    logits = torch.log(views + 1e-6)
+    voxel = 2 / S
+
+    def error(options: dict, target: torch.Tensor) -> float:
+        return float(
+            (
+                heatmap_to_cube_point(logits, S, side_tilt_deg=tilt, refine_px=2, **options) - target[:, 0]
+            ).norm()
+        )
+
+    assert error({}, ring) < voxel  # sum (RVT): the side views win
+    assert error({"fusion": "product"}, handle) < voxel
+    with pytest.raises(ValueError, match="fusion"):
+        heatmap_to_cube_point(logits, S, fusion="mean")
+
+
+def test_product_fusion_matches_brute_force_grid() -> None:
+    """With fusion="product" the factorised argmax is the argmax of the summed log-probabilities over the grid."""
+    S = 24
+    renderer = VirtualViewRenderer(img_size=S)
+    logits = torch.randn(3, 5, S, S, generator=torch.Generator().manual_seed(1))
+    logp = torch.log_softmax(logits.flatten(2), -1).view(3, 5, S, S)
+    g = voxel_centres(S)
+    grid = torch.stack(torch.meshgrid(g, g, g, indexing="ij"), -1).view(1, -1, 3)
+    uv = renderer.project(grid)[0].floor().long()
+    score = sum(logp[:, v, uv[:, v, 1], uv[:, v, 0]] for v in range(5))
+    torch.testing.assert_close(
+        heatmap_to_cube_point(logits, S, chunk=5, fusion="product"), grid[0][score.argmax(-1)]
+    )

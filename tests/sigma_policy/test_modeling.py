@@ -924,3 +924,28 @@ def test_instruction_negatives_ask_first_frames_the_other_instruction_and_add_it
         build(tiny_root, instruction_negative_weight=1.0)
     with pytest.raises(ValueError, match="instruction_negative_weight"):
         SigmaConfig(instruction_negative_weight=-1.0)
+
+
+@pytest.mark.parametrize("fusion", ["sum", "product"])
+def test_the_heads_read_where_the_policy_acts_whichever_heatmap_fusion(tiny_root, monkeypatch, fusion):
+    """The yaw scan and the local features read at the predicted point's pixels: with ``heatmap_fusion`` those are
+    the projections of the point the policy acts on, not of the point another fusion would pick (docs/method.md
+    §14.6: product fusion without this moved the hand to the nut's handle and turned it for the ring)."""
+    import sigma_policy.network as network_module
+    from sigma_policy.heatmap import predicted_uv
+
+    _, policy, pre, _, _ = build(tiny_root, yaw_scan_px=8, heatmap_fusion=fusion)
+    policy.eval()
+    read = []
+
+    def recording(logits, side_tilt_deg=0.0, fusion="sum"):
+        read.append((fusion, predicted_uv(logits, side_tilt_deg, fusion)))
+        return read[-1][1]
+
+    monkeypatch.setattr(network_module, "predicted_uv", recording)
+    pred = policy.predict(pre(single_observation(tiny_root, 1)))
+    assert [f for f, _ in read] == [fusion]
+    # the acted point's voxel, from the heatmaps the policy kept (log-probabilities: the same argmax as the logits)
+    torch.testing.assert_close(read[0][1], predicted_uv(pred.heatmaps.log(), 0.0, fusion))
+    with pytest.raises(ValueError, match="heatmap_fusion"):
+        SigmaConfig(heatmap_fusion="mean")
