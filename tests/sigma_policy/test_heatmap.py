@@ -75,18 +75,21 @@ def test_tilted_views_round_trip_and_refine(S: int, tilt: float) -> None:
     assert wrong.mean() > 2 * voxel
 
 
-def test_back_projection_matches_brute_force_grid() -> None:
-    """Factorised argmax == argmax over the explicit S^3 voxel grid projected into every view."""
+@pytest.mark.parametrize("fusion", ["sum", "product"])
+def test_back_projection_matches_brute_force_grid(fusion: str) -> None:
+    """Factorised argmax == argmax over the explicit S^3 voxel grid projected into every view, of the views'
+    probabilities (sum) or log-probabilities (product)."""
     S = 24
     renderer = VirtualViewRenderer(img_size=S)
     logits = torch.randn(3, 5, S, S, generator=torch.Generator().manual_seed(0))
-    prob = torch.softmax(logits.flatten(2), -1).view(3, 5, S, S)
+    normalise = torch.softmax if fusion == "sum" else torch.log_softmax
+    per_view = normalise(logits.flatten(2), -1).view(3, 5, S, S)
     g = voxel_centres(S)
     grid = torch.stack(torch.meshgrid(g, g, g, indexing="ij"), -1).view(1, -1, 3)
     uv = renderer.project(grid)[0].floor().long()  # (S^3, V, 2) pixel (col, row) of each voxel centre
-    score = sum(prob[:, v, uv[:, v, 1], uv[:, v, 0]] for v in range(5)) / 5  # (B, S^3)
+    score = sum(per_view[:, v, uv[:, v, 1], uv[:, v, 0]] for v in range(5))  # (B, S^3)
     want = grid[0][score.argmax(-1)]
-    torch.testing.assert_close(heatmap_to_cube_point(logits, S, chunk=5), want)
+    torch.testing.assert_close(heatmap_to_cube_point(logits, S, chunk=5, fusion=fusion), want)
 
 
 def test_bad_shape_raises() -> None:
@@ -121,18 +124,3 @@ def test_product_fusion_lets_a_sure_top_view_overrule_side_views(tilt: float) ->
     assert error({"fusion": "product"}, handle) < voxel
     with pytest.raises(ValueError, match="fusion"):
         heatmap_to_cube_point(logits, S, fusion="mean")
-
-
-def test_product_fusion_matches_brute_force_grid() -> None:
-    """With fusion="product" the factorised argmax is the argmax of the summed log-probabilities over the grid."""
-    S = 24
-    renderer = VirtualViewRenderer(img_size=S)
-    logits = torch.randn(3, 5, S, S, generator=torch.Generator().manual_seed(1))
-    logp = torch.log_softmax(logits.flatten(2), -1).view(3, 5, S, S)
-    g = voxel_centres(S)
-    grid = torch.stack(torch.meshgrid(g, g, g, indexing="ij"), -1).view(1, -1, 3)
-    uv = renderer.project(grid)[0].floor().long()
-    score = sum(logp[:, v, uv[:, v, 1], uv[:, v, 0]] for v in range(5))
-    torch.testing.assert_close(
-        heatmap_to_cube_point(logits, S, chunk=5, fusion="product"), grid[0][score.argmax(-1)]
-    )
