@@ -191,10 +191,10 @@ def run_diagnose(cfg: DiagnoseConfig) -> dict[str, Any]:
 
     if (cfg.run is None) == (cfg.checkpoint is None):
         raise ValueError("give exactly one of --run (a lerobot-train output dir) or --checkpoint")
-    from sigma_policy.heatmap import HEATMAP_FUSIONS
+    if cfg.heatmap_fusion is not None:
+        from sigma_policy.heatmap import check_heatmap_fusion
 
-    if cfg.heatmap_fusion is not None and cfg.heatmap_fusion not in HEATMAP_FUSIONS:
-        raise ValueError(f"--heatmap_fusion must be one of {HEATMAP_FUSIONS}, got '{cfg.heatmap_fusion}'")
+        check_heatmap_fusion(cfg.heatmap_fusion, "--heatmap_fusion")
     ckpts = run_checkpoints(cfg.run) if cfg.run is not None else [(-1, Path(cfg.checkpoint))]
     out_dir = cfg.output_dir or (
         Path(cfg.run) / "diagnostics" if cfg.run else Path(cfg.checkpoint).parent / "diagnostics"

@@ -236,10 +236,10 @@ def run_eval(cfg: EvalConfig) -> dict:
 
         bins = json.loads((Path(cfg.checkpoint) / "config.json").read_text()).get("num_rotation_bins", 72)
         check_yaw_angles(cfg.tta_yaw_deg, bins)  # ValueError naming the angles
-    from sigma_policy.heatmap import HEATMAP_FUSIONS
+    if cfg.heatmap_fusion is not None:
+        from sigma_policy.heatmap import check_heatmap_fusion
 
-    if cfg.heatmap_fusion is not None and cfg.heatmap_fusion not in HEATMAP_FUSIONS:
-        raise ValueError(f"--heatmap_fusion must be one of {HEATMAP_FUSIONS}, got '{cfg.heatmap_fusion}'")
+        check_heatmap_fusion(cfg.heatmap_fusion, "--heatmap_fusion")
     if cfg.instruction_contrast:
         _check_instruction_contrast(cfg)
     if cfg.act_with_ema is not None:

@@ -64,9 +64,8 @@ def failure_reason(result: EpisodeResult, max_keyframes: int) -> str | None:
     if result.other_variation is not None:
         return f"wrong object: did {result.other_variation}"
     held = False
-    off_handle = (
-        ""  # "grasped off the handle at keyframe k (...); then ", once the hand holds a nut by its ring
-    )
+    # "grasped off the handle at keyframe k (...); then ", once the hand holds a nut by its ring
+    off_handle = ""
     for i, step in enumerate(result.trace):
         k = step["keyframe"]
         nearest = step.get("nearest")

@@ -77,7 +77,7 @@ from sigma_data.contract import (  # the data contract: the only sigma_data modu
     rgb_key,
 )
 from sigma_policy.compat import drop_retired
-from sigma_policy.heatmap import HEATMAP_FUSIONS
+from sigma_policy.heatmap import check_heatmap_fusion
 from sigma_policy.instruction_contrast import check_contrast_weight
 from sigma_policy.lamb import LambConfig
 from sigma_policy.network_config import NetworkConfig
@@ -395,8 +395,7 @@ class SigmaConfig(PreTrainedConfig):
             if not _is_box(box):
                 raise ValueError(f"policy.instruction_bounds[{instruction!r}] must be a box of 6, got {box}")
         self.tta_yaw_deg = check_yaw_angles(self.tta_yaw_deg, self.num_rotation_bins)
-        if self.heatmap_fusion not in HEATMAP_FUSIONS:
-            raise ValueError(f"heatmap_fusion must be one of {HEATMAP_FUSIONS}, got '{self.heatmap_fusion}'")
+        self.heatmap_fusion = check_heatmap_fusion(self.heatmap_fusion)
         self.instruction_contrast = check_contrast_weight(self.instruction_contrast)
         if not self.instruction_negative_weight >= 0.0:
             raise ValueError(

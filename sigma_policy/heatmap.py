@@ -42,6 +42,7 @@ from sigma_policy.views import VIEW_AXES, project_points, tilt_slope
 
 __all__ = [
     "HEATMAP_FUSIONS",
+    "check_heatmap_fusion",
     "gaussian_heatmaps",
     "heads_at_point",
     "heatmap_pool",
@@ -53,6 +54,14 @@ __all__ = [
 # How the views' heatmaps are fused into one score per voxel: "sum" of probabilities (RVT) or "product" (the sum of
 # log-probabilities; sigma addition, docs/method.md §14.6).
 HEATMAP_FUSIONS: tuple[str, ...] = ("sum", "product")
+
+
+def check_heatmap_fusion(fusion: str, name: str = "heatmap_fusion") -> str:
+    """``fusion`` if it is one of :data:`HEATMAP_FUSIONS`, else a ``ValueError`` naming the option ``name`` (a
+    config field, a CLI flag) and the value it got."""
+    if fusion not in HEATMAP_FUSIONS:
+        raise ValueError(f"{name} must be one of {HEATMAP_FUSIONS}, got '{fusion}'")
+    return fusion
 
 
 def gaussian_heatmaps(uv: Tensor, img_size: int, sigma: float = 1.5) -> Tensor:
@@ -78,12 +87,12 @@ def voxel_centres(img_size: int, device: torch.device | str | None = None) -> Te
     return -1 + (2 * torch.arange(img_size, device=device, dtype=torch.float32) + 1) / img_size
 
 
-def _view_score(prob: Tensor, view: int, S: int) -> tuple[Tensor, tuple[int, int]]:
-    """Per-view probabilities re-indexed by voxel indices: returns ``(B, S, S)`` indexed ``[k_first, k_second]``
-    over the two cube axes (sorted) that the view sees, and those axes."""
+def _view_score(per_view: Tensor, view: int, S: int) -> tuple[Tensor, tuple[int, int]]:
+    """One view's scores (probabilities, or their logs) re-indexed by voxel indices: returns ``(B, S, S)`` indexed
+    ``[k_first, k_second]`` over the two cube axes (sorted) that the view sees, and those axes."""
     u_axis, u_sign, v_axis, v_sign, _, _ = VIEW_AXES[view]
     # Voxel index k along an axis lands on pixel k (sign +1) or S - 1 - k (sign -1).
-    img = prob  # (B, H=rows <- v axis, W=cols <- u axis)
+    img = per_view  # (B, H=rows <- v axis, W=cols <- u axis)
     if v_sign < 0:
         img = img.flip(-2)
     if u_sign < 0:
@@ -125,15 +134,13 @@ def heatmap_to_cube_point(
     S = img_size
     if (len(VIEW_AXES), S, S) != (V, H, W):
         raise ValueError(f"logits must be (B, {len(VIEW_AXES)}, {S}, {S}), got {tuple(logits.shape)}")
-    if fusion not in HEATMAP_FUSIONS:
-        raise ValueError(f"heatmap fusion must be one of {HEATMAP_FUSIONS}, got '{fusion}'")
-    normalise = torch.softmax if fusion == "sum" else torch.log_softmax
-    prob = normalise(logits.float().flatten(2), dim=-1).view(B, V, S, S)
+    normalise = torch.softmax if check_heatmap_fusion(fusion, "fusion") == "sum" else torch.log_softmax
+    per_view = normalise(logits.float().flatten(2), dim=-1).view(B, V, S, S)  # probabilities, or their logs
     if tilt_slope(side_tilt_deg) > 0.0:
-        return _projected_grid_point(prob, chunk, refine_px, side_tilt_deg)
+        return _projected_grid_point(per_view, chunk, refine_px, side_tilt_deg)
     pair_sum: dict[tuple[int, int], Tensor] = {}
     for view in range(V):
-        score, axes = _view_score(prob[:, view], view, S)
+        score, axes = _view_score(per_view[:, view], view, S)
         pair_sum[axes] = pair_sum[axes] + score if axes in pair_sum else score
     zeros = torch.zeros(B, S, S, device=logits.device)
     xy, xz, yz = (pair_sum.get(k, zeros) for k in ((0, 1), (0, 2), (1, 2)))
@@ -203,13 +210,14 @@ def _voxel_taps(voxels: Tensor, S: int, side_tilt_deg: float) -> tuple[Tensor, T
     return i0, i0 + S, torch.stack(w)
 
 
-def _projected_grid_point(prob: Tensor, chunk: int, refine_px: int, side_tilt_deg: float) -> Tensor:
+def _projected_grid_point(per_view: Tensor, chunk: int, refine_px: int, side_tilt_deg: float) -> Tensor:
     """:func:`heatmap_to_cube_point` for tilted side views: every voxel centre projected (module docstring)."""
-    B, S = prob.shape[0], prob.shape[-1]
-    flat = prob.flatten(2)
+    B, S = per_view.shape[0], per_view.shape[-1]
+    flat = per_view.flatten(2)
 
     def score(voxels: Tensor) -> Tensor:
-        """Summed interpolated probability ``(B, M)`` of flat voxel indices ``(M,)``, or ``(B, M)`` per sample."""
+        """The views' interpolated scores (probabilities, or their logs under product fusion) summed, ``(B, M)``,
+        at flat voxel indices ``(M,)``, or ``(B, M)`` per sample."""
         i0, i1, ww = _voxel_taps(voxels, S, float(side_tilt_deg))
         if voxels.ndim == 1:
             i0, i1, ww = (t.expand(B, -1, -1) for t in (i0, i1, ww))
@@ -218,19 +226,19 @@ def _projected_grid_point(prob: Tensor, chunk: int, refine_px: int, side_tilt_de
         lo, hi = flat.gather(2, i0), flat.gather(2, i1)
         return (lo + (hi - lo) * ww).sum(1)
 
-    best_val = torch.full((B,), -math.inf, device=prob.device)
-    best_idx = torch.zeros(B, dtype=torch.long, device=prob.device)
+    best_val = torch.full((B,), -math.inf, device=per_view.device)
+    best_idx = torch.zeros(B, dtype=torch.long, device=per_view.device)
     for a0 in range(0, S, chunk):
-        voxels = torch.arange(a0 * S * S, min(S, a0 + chunk) * S * S, device=prob.device)
+        voxels = torch.arange(a0 * S * S, min(S, a0 + chunk) * S * S, device=per_view.device)
         val, idx = score(voxels).max(1)
         better = val > best_val
         best_val = torch.where(better, val, best_val)
         best_idx = torch.where(better, idx + a0 * S * S, best_idx)
     cell = torch.stack([best_idx // (S * S), best_idx // S % S, best_idx % S], -1)  # (B, 3) voxel indices
-    point = voxel_centres(S, prob.device)[cell]
+    point = voxel_centres(S, per_view.device)[cell]
     if refine_px <= 0:
         return point
-    steps = torch.arange(S, device=prob.device)
+    steps = torch.arange(S, device=per_view.device)
     shifts = []
     for axis, stride in enumerate((S * S, S, 1)):  # the summed score along each axis through the argmax voxel
         line = (best_idx - cell[:, axis] * stride)[:, None] + steps * stride  # (B, S) flat voxel indices

@@ -122,5 +122,5 @@ def test_product_fusion_lets_a_sure_top_view_overrule_side_views(tilt: float) ->
 
     assert error({}, ring) < voxel  # sum (RVT): the side views win
     assert error({"fusion": "product"}, handle) < voxel
-    with pytest.raises(ValueError, match="fusion"):
+    with pytest.raises(ValueError, match=r"^fusion must be one of \('sum', 'product'\), got 'mean'$"):
         heatmap_to_cube_point(logits, S, fusion="mean")
