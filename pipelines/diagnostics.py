@@ -161,11 +161,14 @@ def run_checkpoints(run_dir: Path) -> list[tuple[int, Path]]:
 NOT_SCORING = frozenset({"run", "checkpoint", "batch_size", "device", "output_dir", "reuse"})
 
 
-def scoring_options(cfg: DiagnoseConfig) -> dict[str, Any]:
-    """The options that change a checkpoint's scores (every field but ``NOT_SCORING``), paths as strings."""
+def scoring_options(cfg: DiagnoseConfig, acting_fusion: str = "sum") -> dict[str, Any]:
+    """The options that change a checkpoint's scores (every field but ``NOT_SCORING``), paths as strings; the
+    heatmap fusion is the one the checkpoints act with (``acting_fusion``) unless ``--heatmap_fusion`` is given."""
     values = {f.name: getattr(cfg, f.name) for f in fields(cfg) if f.name not in NOT_SCORING}
-    if values["heatmap_fusion"] is None:  # reports written before the option keep matching
-        del values["heatmap_fusion"]
+    if values["heatmap_fusion"] is None:
+        values["heatmap_fusion"] = acting_fusion
+        if acting_fusion == "sum":  # reports written before the option keep matching
+            del values["heatmap_fusion"]
     return {name: str(v) if isinstance(v, Path) else v for name, v in values.items()}
 
 
@@ -200,7 +203,12 @@ def run_diagnose(cfg: DiagnoseConfig) -> dict[str, Any]:
         Path(cfg.run) / "diagnostics" if cfg.run else Path(cfg.checkpoint).parent / "diagnostics"
     )
     out_dir.mkdir(parents=True, exist_ok=True)
-    options = {**scoring_options(cfg), "data": scored_data(ckpts[-1][1], cfg.root, cfg.heldout_root)}
+    from sigma_policy.configuration_sigma import saved_heatmap_fusion
+
+    options = {
+        **scoring_options(cfg, saved_heatmap_fusion(ckpts[-1][1])),
+        "data": scored_data(ckpts[-1][1], cfg.root, cfg.heldout_root),
+    }
     sizes, saved = saved_scores(out_dir / "diagnostics.json", options) if cfg.reuse else ({}, {})
     digests = [sha256(ckpt / "model.safetensors") for _, ckpt in ckpts]
     todo = [(step, ckpt, d) for (step, ckpt), d in zip(ckpts, digests, strict=True) if (step, d) not in saved]

@@ -290,8 +290,12 @@ def _resume(cfg: EvalConfig, jobs: list[Job]) -> tuple[EpisodeLog, list[EpisodeR
         header["act_with_ema"] = cfg.act_with_ema
     if cfg.regrasps:  # likewise
         header["regrasps"] = cfg.regrasps
-    if cfg.heatmap_fusion is not None:  # likewise
-        header["heatmap_fusion"] = cfg.heatmap_fusion
+    from sigma_policy.configuration_sigma import saved_heatmap_fusion
+
+    # likewise for a policy acting with the sum; a checkpoint saved before the field acts with its preset's now
+    fusion = cfg.heatmap_fusion or saved_heatmap_fusion(cfg.checkpoint)
+    if cfg.heatmap_fusion is not None or fusion != "sum":
+        header["heatmap_fusion"] = fusion
     if cfg.ensemble:  # the header of a single policy's log stays as it was
         header["ensemble_sha256"] = [sha256(Path(m) / "model.safetensors") for m in cfg.ensemble]
     log = EpisodeLog(cfg.output_dir, header)

@@ -7,7 +7,7 @@ docs/method.md §12. Every architecture / schedule field left unset (``None``) i
 ``paper`` is the paper's network and schedule (docs/method.md §5, §10). ``small`` is the network for 2 CPU cores
 and minutes: 64² views of 8 × 8 tokens, 128-d attention in 4 layers, the proprio token (and its FiLM),
 full-resolution local features for the heads, LeakyReLU heads, lr 1e-2 with biases, norms and query tokens exempt
-from LAMB's trust ratio, and yaw augmentation only.
+from LAMB's trust ratio, yaw augmentation only, and the views' heatmaps lifted to the 3D point by their product.
 
 ``suite`` is ``small`` for several tasks at once: ``per_task_bounds=True`` (each task rendered in its own box),
 ``yaw_scan_px=24`` (the rotation-equivariant yaw scan), lr 3e-3 and a 7500-step decay. It is the suite benchmark's
@@ -116,6 +116,7 @@ PRESETS: dict[str, dict[str, Any]] = {
         "per_task_bounds": False,
         "yaw_scan_px": 0,
         "contrastive_center": False,
+        "heatmap_fusion": "sum",
     },
     "small": {
         "img_size": 64,
@@ -148,6 +149,7 @@ PRESETS: dict[str, dict[str, Any]] = {
         "per_task_bounds": False,
         "yaw_scan_px": 0,
         "contrastive_center": False,
+        "heatmap_fusion": "product",
     },
 }
 # The multi-task recipe of the suite benchmark (benchmarks/bench_suite.py, RESULTS.md "The suite on 2 CPU cores"):
@@ -176,6 +178,13 @@ PRESETS["gpu"] = PRESETS["suite"] | {
 ACTION_DIM = KEYFRAME_ACTION_DIM
 # A 1 m box over robosuite's table (x toward the robot's front, z up; the table top is at z = 0.8 m).
 DEFAULT_SCENE_BOUNDS = [-0.4, -0.55, 0.75, 0.6, 0.5, 1.75]
+
+
+def saved_heatmap_fusion(pretrained_dir: str | Path) -> str:
+    """The heatmap fusion a saved checkpoint acts with: its ``config.json``'s ``heatmap_fusion``, or its preset's
+    for a config saved before the field existed (2026-12-06, when they acted with the sum)."""
+    saved = json.loads((Path(pretrained_dir) / CONFIG_NAME).read_text())
+    return saved.get("heatmap_fusion") or PRESETS[saved.get("preset", "paper")]["heatmap_fusion"]
 
 
 def _is_box(box: list[float]) -> bool:
@@ -270,9 +279,10 @@ class SigmaConfig(PreTrainedConfig):
     # averaged. [] = off (every preset); each angle adds one inference pass.
     tta_yaw_deg: list[float] = field(default_factory=list)
     tta_radius_m: float = 0.02
-    # How the views' heatmaps vote for the 3D point at inference (inference only; sigma_policy/heatmap.py,
-    # docs/method.md §14.6): "sum" of their probabilities (RVT; every preset) or "product" (every view must agree).
-    heatmap_fusion: str = "sum"
+    # How the views' heatmaps vote for the 3D point (inference only; sigma_policy/heatmap.py, docs/method.md §14.6):
+    # "sum" of their probabilities (RVT) or "product" (every view must agree). None = from preset (paper "sum", small
+    # "product": +6 points on the five tasks with 13 episodes won and none lost, docs/learning.md).
+    heatmap_fusion: str | None = None
     # Instruction-contrastive decoding (inference only; sigma_policy/instruction_contrast.py): each view's heatmap
     # under the instruction is divided by the ``instruction_contrast``-th power of the mean heatmap over every
     # instruction of its task (``instruction_tasks``), so a place all of them point at loses to the place only this

@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 import torch
 
-from pipelines.diagnostics import DiagnoseConfig, run_diagnose
+from pipelines.diagnostics import DiagnoseConfig, run_diagnose, scoring_options
 from pipelines.keyframe_errors import action_errors, summarise_errors
 from pipelines.keyframe_sets import goal_rows, open_dataset
 from sigma_policy.modeling_sigma import SigmaPolicy
@@ -255,3 +255,11 @@ def test_act_with_ema_on_a_checkpoint_without_a_weight_average_is_named(tmp_path
     cfg = DiagnoseConfig(checkpoint=ckpt, root=root, heldout_root=root, act_with_ema=False)
     with pytest.raises(ValueError, match=f"{ckpt} was trained without a weight average"):
         run_diagnose(cfg)
+
+
+def test_a_diagnosis_is_keyed_by_the_heatmap_fusion_the_checkpoints_act_with():
+    """A report scored with the sum (every report before the option) matches a sum-acting checkpoint; one that acts
+    with product fusion, by its config or by ``--heatmap_fusion``, is scored apart."""
+    assert "heatmap_fusion" not in scoring_options(DiagnoseConfig(), "sum")
+    assert scoring_options(DiagnoseConfig(), "product")["heatmap_fusion"] == "product"
+    assert scoring_options(DiagnoseConfig(heatmap_fusion="sum"), "product")["heatmap_fusion"] == "sum"

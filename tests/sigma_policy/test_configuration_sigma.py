@@ -3,11 +3,12 @@ which prints ``PRESETS`` (sigma_policy/configuration_sigma.py) field by field an
 
 from __future__ import annotations
 
+import json
 from pathlib import Path
 
 import pytest
 
-from sigma_policy.configuration_sigma import PRESETS, SigmaConfig
+from sigma_policy.configuration_sigma import PRESETS, SigmaConfig, saved_heatmap_fusion
 
 METHOD_MD = Path(__file__).resolve().parents[2] / "docs" / "method.md"
 
@@ -101,3 +102,23 @@ def test_config_presets_and_overrides():
     assert small.network_config().proprio_film and not paper.network_config().proprio_film
     suite = SigmaConfig(preset="suite", device="cpu")
     assert not suite.network_config().proprio_film  # measured with `small` only
+
+
+def test_a_saved_checkpoint_acts_with_its_own_heatmap_fusion_or_else_its_presets(tmp_path):
+    """Configs saved before ``heatmap_fusion`` existed take their preset's (docs/method.md §14.6); saved ones keep
+    theirs, so an evaluation log or a diagnosis of them is not mistaken for the other fusion's."""
+    assert (
+        SigmaConfig(device="cpu").heatmap_fusion,
+        SigmaConfig(preset="suite", device="cpu").heatmap_fusion,
+    ) == (
+        "sum",
+        "product",
+    )
+    for saved, acting in (
+        ({"preset": "suite"}, "product"),
+        ({"preset": "paper"}, "sum"),
+        ({"preset": "small", "heatmap_fusion": "sum"}, "sum"),
+        ({"preset": "paper", "heatmap_fusion": "product"}, "product"),
+    ):
+        (tmp_path / "config.json").write_text(json.dumps(saved))
+        assert saved_heatmap_fusion(tmp_path) == acting, saved
