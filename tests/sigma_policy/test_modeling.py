@@ -173,7 +173,9 @@ def test_yaw_ensemble_turns_the_cloud_and_the_hand_and_turns_each_prediction_bac
 
     def spy_network(views, tasks, batch, bounds, transforms=None, **kwargs):
         out = run_network(views, tasks, batch, bounds, transforms=transforms, **kwargs)
-        cube = heatmap_to_cube_point(out.trans.float(), cfg.img_size, refine_px=cfg.heatmap_refine_px)
+        cube = heatmap_to_cube_point(
+            out.trans.float(), cfg.img_size, refine_px=cfg.heatmap_refine_px, fusion=cfg.heatmap_fusion
+        )
         world = cube_to_world(cube, bounds)
         points.append(world if transforms is None else transform_points(transforms, world, inverse=True))
         return out
@@ -815,9 +817,11 @@ def test_instruction_contrast_asks_the_tasks_other_instructions_and_runs_the_hea
     assert [c[0] for c in calls] == [[own], [other], [own]]
     assert calls[0][1] is None and calls[1][1] is None
     trans = contrasted_logits(calls[0][2], calls[1][2][None], torch.tensor([[True]]), 0.5)
-    torch.testing.assert_close(calls[2][1], predicted_uv(trans))
+    torch.testing.assert_close(calls[2][1], predicted_uv(trans, fusion=cfg.heatmap_fusion))
     torch.testing.assert_close(pred.heatmaps, torch.softmax(trans.flatten(2), -1).reshape(trans.shape))
-    cube = heatmap_to_cube_point(trans, cfg.img_size, refine_px=cfg.heatmap_refine_px)
+    cube = heatmap_to_cube_point(
+        trans, cfg.img_size, refine_px=cfg.heatmap_refine_px, fusion=cfg.heatmap_fusion
+    )
     torch.testing.assert_close(pred.action[:, :3], cube_to_world(cube, pred.bounds))
     # alone in its task: one run
     policy.config.instruction_tasks = {own: "the task"}
