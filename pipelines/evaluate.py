@@ -72,7 +72,7 @@ class EvalConfig:
     # None: the checkpoint's own (off unless it was trained with them set).
     tta_yaw_deg: list[float] | None = None
     # How the views' heatmaps are fused into the 3D point (the policy's `heatmap_fusion`: sum or product,
-    # sigma_policy/heatmap.py); None: the checkpoint's own (sum unless it was trained with it set).
+    # sigma_policy/heatmap.py); None: the one the checkpoint acts with (its config's, else its preset's).
     heatmap_fusion: str | None = None
     # Instruction-contrastive decoding's weight (the policy's `instruction_contrast`, in [0, 1);
     # sigma_policy/instruction_contrast.py); None: the checkpoint's own (0, off, unless it was trained with it set).
