@@ -183,8 +183,14 @@ DEFAULT_SCENE_BOUNDS = [-0.4, -0.55, 0.75, 0.6, 0.5, 1.75]
 def saved_heatmap_fusion(pretrained_dir: str | Path) -> str:
     """The heatmap fusion a saved checkpoint acts with: its ``config.json``'s ``heatmap_fusion``, or its preset's
     for a config saved before the field existed (2026-12-06, when they acted with the sum)."""
-    saved = json.loads((Path(pretrained_dir) / CONFIG_NAME).read_text())
-    return saved.get("heatmap_fusion") or PRESETS[saved.get("preset", "paper")]["heatmap_fusion"]
+    path = Path(pretrained_dir) / CONFIG_NAME
+    saved = json.loads(path.read_text())
+    if saved.get("heatmap_fusion"):
+        return saved["heatmap_fusion"]
+    preset = saved.get("preset", "paper")
+    if preset not in PRESETS:
+        raise ValueError(f"{path}: preset must be one of {sorted(PRESETS)}, got {preset!r}")
+    return PRESETS[preset]["heatmap_fusion"]
 
 
 def _is_box(box: list[float]) -> bool:
@@ -281,7 +287,7 @@ class SigmaConfig(PreTrainedConfig):
     tta_radius_m: float = 0.02
     # How the views' heatmaps vote for the 3D point (inference only; sigma_policy/heatmap.py, docs/method.md §14.6):
     # "sum" of their probabilities (RVT) or "product" (every view must agree). None = from preset (paper "sum", small
-    # "product": +6 points on the five tasks with 13 episodes won and none lost, docs/learning.md).
+    # "product": +2 points over 400 five-task pairs, 14 episodes won and 5 lost, docs/learning.md).
     heatmap_fusion: str | None = None
     # Instruction-contrastive decoding (inference only; sigma_policy/instruction_contrast.py): each view's heatmap
     # under the instruction is divided by the ``instruction_contrast``-th power of the mean heatmap over every

@@ -122,3 +122,6 @@ def test_a_saved_checkpoint_acts_with_its_own_heatmap_fusion_or_else_its_presets
     ):
         (tmp_path / "config.json").write_text(json.dumps(saved))
         assert saved_heatmap_fusion(tmp_path) == acting, saved
+    (tmp_path / "config.json").write_text(json.dumps({"preset": "huge"}))
+    with pytest.raises(ValueError, match=r"config\.json: preset must be one of .* got 'huge'"):
+        saved_heatmap_fusion(tmp_path)
