@@ -180,6 +180,13 @@ ACTION_DIM = KEYFRAME_ACTION_DIM
 DEFAULT_SCENE_BOUNDS = [-0.4, -0.55, 0.75, 0.6, 0.5, 1.75]
 
 
+def preset_values(name: str, where: str = "policy.preset") -> dict[str, Any]:
+    """The fields preset ``name`` fills (``PRESETS``); an unknown name is an error naming ``where`` it came from."""
+    if name not in PRESETS:
+        raise ValueError(f"{where} must be one of {sorted(PRESETS)}, got {name!r}")
+    return PRESETS[name]
+
+
 def saved_heatmap_fusion(pretrained_dir: str | Path) -> str:
     """The heatmap fusion a saved checkpoint acts with: its ``config.json``'s ``heatmap_fusion``, or its preset's
     for a config saved before the field existed (2026-12-06, when they acted with the sum)."""
@@ -187,10 +194,7 @@ def saved_heatmap_fusion(pretrained_dir: str | Path) -> str:
     saved = json.loads(path.read_text())
     if saved.get("heatmap_fusion"):
         return saved["heatmap_fusion"]
-    preset = saved.get("preset", "paper")
-    if preset not in PRESETS:
-        raise ValueError(f"{path}: preset must be one of {sorted(PRESETS)}, got {preset!r}")
-    return PRESETS[preset]["heatmap_fusion"]
+    return preset_values(saved.get("preset", "paper"), f"{path}: preset")["heatmap_fusion"]
 
 
 def _is_box(box: list[float]) -> bool:
@@ -384,9 +388,7 @@ class SigmaConfig(PreTrainedConfig):
 
     def __post_init__(self) -> None:
         super().__post_init__()
-        if self.preset not in PRESETS:
-            raise ValueError(f"policy.preset must be one of {sorted(PRESETS)}, got {self.preset!r}")
-        for name, value in PRESETS[self.preset].items():
+        for name, value in preset_values(self.preset).items():
             if getattr(self, name) is None:
                 setattr(self, name, value)
         if self.scene_bounds is not None and not _is_box(self.scene_bounds):
