@@ -33,16 +33,23 @@ def main() -> None:
     ap.add_argument("--steps", type=int, default=20)
     ap.add_argument("--no-bf16", action="store_true")
     ap.add_argument("--compile", action="store_true")
-    ap.add_argument("--channels-last", action="store_true", help="NHWC conv activations and weights")
+    ap.add_argument(
+        "--layout",
+        choices=["auto", "nhwc", "nchw"],
+        default="auto",
+        help="conv activations: auto = NHWC on the CPU, NCHW on CUDA (sigma_policy/layers.py ConvBlock); nhwc also "
+        "turns the weights",
+    )
     ap.add_argument("--lamb-loop", action="store_true", help="per-parameter LAMB update instead of foreach")
     ap.add_argument("--profile", action="store_true", help="print the top kernels of two profiled steps")
     args = ap.parse_args()
     dev, b = args.device, args.batch_size
+    layout = {"auto": None, "nhwc": True, "nchw": False}[args.layout]
     cfg = dataclasses.replace(
-        SigmaConfig(preset=args.config, device=dev).network_config(), channels_last=args.channels_last
+        SigmaConfig(preset=args.config, device=dev).network_config(), channels_last=layout
     )
     net = SigmaNetwork(cfg, 384, 384).to(dev)
-    if args.channels_last:
+    if layout:
         net = net.to(memory_format=torch.channels_last)
     renderer = VirtualViewRenderer(cfg.img_size).to(dev)
     opt = Lamb(net.parameters(), lr=1e-4, weight_decay=1e-6, foreach=not args.lamb_loop)
@@ -125,7 +132,7 @@ def main() -> None:
         "points": args.points,
         "bf16": gpu and not args.no_bf16,
         "compile": args.compile,
-        "channels_last": args.channels_last,
+        "layout": args.layout,
         "lamb": "loop" if args.lamb_loop else "foreach",
         "train_samples_per_s": round(train_sps, 1),
         "action_ms": round(1000 * times[len(times) // 2], 2),

@@ -13,7 +13,8 @@ Inference latency is compared with the goal of issue 6 (<= 1 s per action on CPU
     python -m benchmarks.bench_policy --config paper --device cuda     # paper on a GPU
     python -m benchmarks.bench_policy --steps 2 --reps 3 --publish false
 
-Flags are draccus-style (``--batch_size``, ``--camera_size``, ``--contrastive false`` to time the baseline only).
+Flags are draccus-style (``--batch_size``, ``--camera_size``, ``--contrastive false`` to time the baseline only,
+``--compare_layouts true`` to time the Σ-agent step with NCHW convolutions too).
 ``benchmarks/bench_network.py`` is the torch-only variant (renderer + network + losses + LAMB, random language
 tokens) for machines without LeRobot.
 
@@ -38,6 +39,7 @@ from lerobot.configs.types import FeatureType, PolicyFeature
 from tqdm import tqdm
 
 from sigma_policy.configuration_sigma import SigmaConfig
+from sigma_policy.layers import ConvBlock
 from sigma_policy.modeling_sigma import SigmaPolicy
 
 BOUNDS = [-0.3, -0.3, 0.7, 0.3, 0.3, 1.3]
@@ -84,6 +86,8 @@ class Variant:
     """One policy under test, with its optimiser and inputs, and the step times measured so far (seconds)."""
 
     contrastive: bool
+    # The convolutions' activation layout: "auto" (NHWC on the CPU, sigma_policy/layers.py ConvBlock) or "nchw".
+    layout: str
     policy: SigmaPolicy
     optimizer: torch.optim.Optimizer
     train_batch: dict
@@ -134,6 +138,9 @@ class PolicyBenchConfig:
     threads: int = 2
     # Also time the Σ-agent step (BC + contrastive); false = the BC-only baseline alone.
     contrastive: bool = True
+    # Also time the Σ-agent step with NCHW convolution activations (the layout before 2026-12-06; on the CPU the
+    # default is NHWC): the ratio is what the layout buys on this machine.
+    compare_layouts: bool = False
     # Write benchmarks/results/policy.md (+ .json), the fragment RESULTS.md includes.
     publish: bool = True
     # Where the fragment goes (default: benchmarks/results).
@@ -146,8 +153,9 @@ class PolicyBenchConfig:
             raise ValueError(f"--device {self.device}: CUDA is not available on this machine")
 
 
-def build(cfg: PolicyBenchConfig, contrastive: bool, batch_size: int) -> Variant:
-    """The policy of the preset (``use_contrastive`` as given), its LAMB optimiser and synthetic inputs."""
+def build(cfg: PolicyBenchConfig, contrastive: bool, batch_size: int, layout: str = "auto") -> Variant:
+    """The policy of the preset (``use_contrastive`` and the convolutions' ``layout`` as given), its LAMB optimiser
+    and synthetic inputs."""
     cams = [f"cam{i}" for i in range(cfg.cameras)]
     torch.manual_seed(0)
     policy_cfg = SigmaConfig(
@@ -160,13 +168,16 @@ def build(cfg: PolicyBenchConfig, contrastive: bool, batch_size: int) -> Variant
         use_contrastive=contrastive,
     )
     policy = SigmaPolicy(policy_cfg).to(cfg.device)
+    for module in policy.modules():
+        if isinstance(module, ConvBlock):
+            module.channels_last = {"auto": None, "nchw": False}[layout]
     optimizer = policy_cfg.get_optimizer_preset().build(policy.get_optim_params())
     train_batch = synthetic_batch(cams, cfg.camera_size, batch_size, 2, cfg.device)
     train_batch["action"] = torch.tensor(
         [[0.0, 0.05, 0.85, 1, 0, 0, 0, 1, 0]] * batch_size, device=cfg.device
     )
     obs = synthetic_batch(cams, cfg.camera_size, 1, None, cfg.device)
-    return Variant(contrastive, policy, optimizer, train_batch, obs)
+    return Variant(contrastive, layout, policy, optimizer, train_batch, obs)
 
 
 def measure(cfg: PolicyBenchConfig, variants: list[Variant], steps: int, reps: int) -> list[dict]:
@@ -178,14 +189,14 @@ def measure(cfg: PolicyBenchConfig, variants: list[Variant], steps: int, reps: i
     """
     gpu = cfg.device.startswith("cuda")
     peak_gb = {}
-    for v in variants:
+    for i, v in enumerate(variants):
         v.policy.train()
         if gpu:
             torch.cuda.reset_peak_memory_stats()
         for _ in range(5 if gpu else 2):
             train_step(v, cfg.device)
         if gpu:
-            peak_gb[v.contrastive] = round(torch.cuda.max_memory_allocated() / 2**30, 2)
+            peak_gb[i] = round(torch.cuda.max_memory_allocated() / 2**30, 2)
     for _ in tqdm(range(steps), desc="train steps (all variants)", leave=False):
         for v in variants:
             v.train_s.append(train_step(v, cfg.device))
@@ -197,10 +208,11 @@ def measure(cfg: PolicyBenchConfig, variants: list[Variant], steps: int, reps: i
             if i >= 2:  # 2 warm-up calls
                 v.infer_s.append(seconds)
     rows = []
-    for v in variants:
+    for i, v in enumerate(variants):
         batch_size = len(v.train_batch["task"])
         row = {
             "contrastive": v.contrastive,
+            "layout": v.layout,
             "params_train": v.policy.network.num_parameters(),
             "params_inference": v.policy.network.num_parameters(inference_only=True),
             "train_samples_per_s": round(batch_size / statistics.median(v.train_s), 3),
@@ -209,7 +221,7 @@ def measure(cfg: PolicyBenchConfig, variants: list[Variant], steps: int, reps: i
             "inference_s": [round(t, 4) for t in v.infer_s],
         }
         if gpu:
-            row["peak_mem_gb"] = peak_gb[v.contrastive]
+            row["peak_mem_gb"] = peak_gb[i]
         rows.append(row)
     return rows
 
@@ -232,7 +244,7 @@ def markdown(
     for r in rows:
         name = (
             "Σ-agent (BC + contrastive, current + goal render)" if r["contrastive"] else "BC only (baseline)"
-        )
+        ) + (", NCHW convolutions" if r["layout"] == "nchw" else "")
         ms = r["inference_ms_per_action"]
         verdict = f"{ms / goal_ms:.2f}x the budget: {'met' if ms <= goal_ms else 'not met'}"
         mem = f"{r['peak_mem_gb']:.2f} GiB | " if gpu_mem else ""
@@ -256,6 +268,8 @@ def main(cfg: PolicyBenchConfig) -> list[dict]:
     # The baseline of the same run first: the BC-only (RVT-style) step, which renders no goal and has no
     # contrastive heads; the ratio of the Σ-agent row to it is the cost of contrastive IL.
     variants = [build(cfg, c, batch_size) for c in ([False, True] if cfg.contrastive else [False])]
+    if cfg.compare_layouts:
+        variants.append(build(cfg, cfg.contrastive, batch_size, layout="nchw"))
     rows = measure(cfg, variants, steps, reps)
     device = torch.cuda.get_device_name(cfg.device) if gpu else f"CPU, {cfg.threads} torch threads"
     table = markdown(cfg, rows, device, batch_size, steps, reps)
@@ -281,12 +295,16 @@ def main(cfg: PolicyBenchConfig) -> list[dict]:
             "<= 20 ms on a GPU). Synthetic inputs: no dataset reads are timed (see the loader section).",
             results_dir=cfg.results_dir,
         )
-    last = rows[-1]
+    last = rows[1] if cfg.contrastive else rows[0]
     overhead = (
         f", {rows[1]['train_samples_per_s'] / rows[0]['train_samples_per_s']:.2f}x BC-only"
-        if len(rows) > 1
+        if cfg.contrastive
         else ""
     )
+    if cfg.compare_layouts:
+        overhead += (
+            f", {last['train_samples_per_s'] / rows[-1]['train_samples_per_s']:.2f}x NCHW convolutions"
+        )
     print(
         f"bench_policy: {cfg.config} on {device}: {last['train_samples_per_s']:.2f} train samples/s "
         f"(batch {batch_size}{overhead}), {last['inference_ms_per_action']:.1f} ms per action"

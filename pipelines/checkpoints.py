@@ -70,7 +70,9 @@ def check_checkpoint(checkpoint: Path | str) -> None:
 def check_act_with_ema(checkpoint: Path | str) -> None:
     """ValueError naming ``checkpoint`` unless it was trained with a weight average (the policy's ``ema_decay``,
     docs/method.md §10.1): only then has ``--act_with_ema`` two sets of weights to choose between."""
-    if not json.loads((Path(checkpoint) / "config.json").read_text()).get("ema_decay"):
+    from sigma_policy.configuration_sigma import SigmaConfig
+
+    if not SigmaConfig.from_pretrained(checkpoint).ema_decay:
         raise ValueError(f"--act_with_ema: {checkpoint} was trained without a weight average (ema_decay 0)")
 
 

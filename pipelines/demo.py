@@ -8,7 +8,7 @@ Stages (each shows progress; the run ends with a short table and the paths it wr
 2. **validate** both against the data contract (``sigma-data validate``);
 3. **train** the ``small`` Σ-agent policy with the stock ``lerobot-train --policy.type=sigma`` (1500 steps, in bf16
    autocast where the CPU has native bf16: about 13 minutes on 2 cores of an AVX512-BF16 machine, 17 there in
-   float32, 30 in float32 on 2 cores of an AMD EPYC without AVX-512; README.md gives the whole demo's times);
+   float32, 24 in float32 on 2 cores of an AMD EPYC without AVX-512; README.md gives the whole demo's times);
 4. **evaluate** it closed-loop in robosuite (``sigma-eval``), seeds disjoint from the training seeds;
 5. **visualise**: a Rerun recording of a dataset episode and of the policy's virtual views and heatmaps on a
    failed and a successful rollout (``sigma-viz``; open them with ``rerun <file>.rrd``).

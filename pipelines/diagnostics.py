@@ -203,10 +203,10 @@ def run_diagnose(cfg: DiagnoseConfig) -> dict[str, Any]:
         Path(cfg.run) / "diagnostics" if cfg.run else Path(cfg.checkpoint).parent / "diagnostics"
     )
     out_dir.mkdir(parents=True, exist_ok=True)
-    from sigma_policy.configuration_sigma import saved_heatmap_fusion
+    from sigma_policy.configuration_sigma import SigmaConfig
 
     options = {
-        **scoring_options(cfg, saved_heatmap_fusion(ckpts[-1][1])),
+        **scoring_options(cfg, SigmaConfig.from_pretrained(ckpts[-1][1]).heatmap_fusion),
         "data": scored_data(ckpts[-1][1], cfg.root, cfg.heldout_root),
     }
     sizes, saved = saved_scores(out_dir / "diagnostics.json", options) if cfg.reuse else ({}, {})

@@ -25,7 +25,6 @@ Example::
 
 from __future__ import annotations
 
-import json
 import math
 import multiprocessing as mp
 import os
@@ -192,11 +191,12 @@ def _check_instruction_contrast(cfg: EvalConfig) -> None:
     """ValueError unless the weight is in [0, 1) and the policy will know each instruction's task: from the
     checkpoint's config or from ``--train_dataset``'s records."""
     from sigma_data.contract import recorded_instruction_tasks
+    from sigma_policy.configuration_sigma import SigmaConfig
     from sigma_policy.instruction_contrast import check_contrast_weight
 
     check_contrast_weight(cfg.instruction_contrast)
     config_file = Path(cfg.checkpoint) / "config.json"
-    if json.loads(config_file.read_text()).get("instruction_tasks"):
+    if SigmaConfig.from_pretrained(cfg.checkpoint).instruction_tasks:
         return
     if cfg.train_dataset is None or not recorded_instruction_tasks(cfg.train_dataset):
         raise ValueError(
@@ -232,9 +232,10 @@ def run_eval(cfg: EvalConfig) -> dict:
     if cfg.ensemble:
         _check_ensemble(cfg)
     if cfg.tta_yaw_deg is not None:
+        from sigma_policy.configuration_sigma import SigmaConfig
         from sigma_policy.test_time import check_yaw_angles
 
-        bins = json.loads((Path(cfg.checkpoint) / "config.json").read_text()).get("num_rotation_bins", 72)
+        bins = SigmaConfig.from_pretrained(cfg.checkpoint).num_rotation_bins
         check_yaw_angles(cfg.tta_yaw_deg, bins)  # ValueError naming the angles
     if cfg.heatmap_fusion is not None:
         from sigma_policy.heatmap import check_heatmap_fusion
@@ -290,10 +291,10 @@ def _resume(cfg: EvalConfig, jobs: list[Job]) -> tuple[EpisodeLog, list[EpisodeR
         header["act_with_ema"] = cfg.act_with_ema
     if cfg.regrasps:  # likewise
         header["regrasps"] = cfg.regrasps
-    from sigma_policy.configuration_sigma import saved_heatmap_fusion
+    from sigma_policy.configuration_sigma import SigmaConfig
 
     # likewise for a policy acting with the sum; a checkpoint saved before the field acts with its preset's now
-    fusion = cfg.heatmap_fusion or saved_heatmap_fusion(cfg.checkpoint)
+    fusion = cfg.heatmap_fusion or SigmaConfig.from_pretrained(cfg.checkpoint).heatmap_fusion
     if cfg.heatmap_fusion is not None or fusion != "sum":
         header["heatmap_fusion"] = fusion
     if cfg.ensemble:  # the header of a single policy's log stays as it was

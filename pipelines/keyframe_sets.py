@@ -113,7 +113,9 @@ def keyframe_sets(
     """The training keyframes (:func:`training_data`), and the held-out keyframes when there are any: those of
     ``heldout_root``, else the training dataset's episodes not trained on; at most ``max_frames`` each (0 = all)."""
     root, episodes = training_data(checkpoint, root)
-    depth_unit = json.loads((Path(checkpoint) / "config.json").read_text()).get("depth_unit", "mm")
+    from sigma_policy.configuration_sigma import SigmaConfig
+
+    depth_unit = SigmaConfig.from_pretrained(checkpoint).depth_unit
     train_ds = open_dataset(root, depth_unit)
     rows, steps = goal_rows(train_ds, episodes, max_frames)
     sets = [KeyframeSet("train", train_ds, rows, np.asarray(steps), episodes)]

@@ -59,6 +59,7 @@ from dataclasses import dataclass, field, fields
 from pathlib import Path
 from typing import Any
 
+import draccus
 from huggingface_hub.constants import CONFIG_NAME
 from lerobot.configs.policies import PreTrainedConfig
 from lerobot.configs.types import FeatureType, NormalizationMode
@@ -178,23 +179,6 @@ PRESETS["gpu"] = PRESETS["suite"] | {
 ACTION_DIM = KEYFRAME_ACTION_DIM
 # A 1 m box over robosuite's table (x toward the robot's front, z up; the table top is at z = 0.8 m).
 DEFAULT_SCENE_BOUNDS = [-0.4, -0.55, 0.75, 0.6, 0.5, 1.75]
-
-
-def preset_values(name: str, where: str = "policy.preset") -> dict[str, Any]:
-    """The fields preset ``name`` fills (``PRESETS``); an unknown name is an error naming ``where`` it came from."""
-    if name not in PRESETS:
-        raise ValueError(f"{where} must be one of {sorted(PRESETS)}, got {name!r}")
-    return PRESETS[name]
-
-
-def saved_heatmap_fusion(pretrained_dir: str | Path) -> str:
-    """The heatmap fusion a saved checkpoint acts with: its ``config.json``'s ``heatmap_fusion``, or its preset's
-    for a config saved before the field existed (2026-12-06, when they acted with the sum)."""
-    path = Path(pretrained_dir) / CONFIG_NAME
-    saved = json.loads(path.read_text())
-    if saved.get("heatmap_fusion"):
-        return saved["heatmap_fusion"]
-    return preset_values(saved.get("preset", "paper"), f"{path}: preset")["heatmap_fusion"]
 
 
 def _is_box(box: list[float]) -> bool:
@@ -388,7 +372,9 @@ class SigmaConfig(PreTrainedConfig):
 
     def __post_init__(self) -> None:
         super().__post_init__()
-        for name, value in preset_values(self.preset).items():
+        if self.preset not in PRESETS:
+            raise ValueError(f"policy.preset must be one of {sorted(PRESETS)}, got {self.preset!r}")
+        for name, value in PRESETS[self.preset].items():
             if getattr(self, name) is None:
                 setattr(self, name, value)
         if self.scene_bounds is not None and not _is_box(self.scene_bounds):
@@ -433,17 +419,22 @@ class SigmaConfig(PreTrainedConfig):
     def from_pretrained(cls, pretrained_name_or_path: str | Path, **kwargs: Any) -> SigmaConfig:
         """LeRobot's reader of a saved ``config.json``, after taking out the options sigma has retired
         (sigma_policy/compat.py): a checkpoint saved before an option was removed loads if it left that option
-        off, and is refused, naming the file and the option, if it did not."""
+        off, and is refused, naming the file and the option, if it did not. A field saved before it existed takes
+        its default, or its preset's value (``heatmap_fusion`` of a config saved before 2026-12-06). Every reader of
+        a checkpoint's options goes through here; an invalid value is a ValueError naming the file."""
         config_file = Path(pretrained_name_or_path) / CONFIG_NAME
         if not config_file.is_file():  # a hub id, or no config: LeRobot's own reader says what is wrong
             return super().from_pretrained(pretrained_name_or_path, **kwargs)
         values = json.loads(config_file.read_text())
         kept = drop_retired(values, str(config_file))
-        if kept == values:
-            return super().from_pretrained(pretrained_name_or_path, **kwargs)
-        with tempfile.TemporaryDirectory() as tmp:
-            (Path(tmp) / CONFIG_NAME).write_text(json.dumps(kept))
-            return super().from_pretrained(tmp, **kwargs)
+        try:
+            if kept == values:
+                return super().from_pretrained(pretrained_name_or_path, **kwargs)
+            with tempfile.TemporaryDirectory() as tmp:
+                (Path(tmp) / CONFIG_NAME).write_text(json.dumps(kept))
+                return super().from_pretrained(tmp, **kwargs)
+        except draccus.utils.ParsingError as e:  # names the class only; the cause says which field
+            raise ValueError(f"{config_file}: {e.__cause__ or e}") from e
 
     @property
     def drop_n_last_frames(self) -> int:

@@ -151,6 +151,9 @@ class SigmaNetwork(nn.Module):
             nn.Linear(h2, 3 * cfg.num_rotation_bins + 4),
         )
         self.contrastive = ContrastiveHeads(cfg, lang_sentence_dim) if cfg.use_contrastive else None
+        for module in self.modules():
+            if isinstance(module, ConvBlock):
+                module.channels_last = cfg.channels_last
 
     # ------------------------------------------------------------------ helpers
     def num_parameters(self, inference_only: bool = False) -> int:
@@ -168,10 +171,7 @@ class SigmaNetwork(nn.Module):
                 f"expected images (B, {self.cfg.num_views}, {self.cfg.in_channels}, {self.cfg.img_size}, "
                 f"{self.cfg.img_size}), got {tuple(images.shape)}"
             )
-        x = images.reshape(b * v, ch, h, w)
-        if self.cfg.channels_last:
-            x = x.contiguous(memory_format=torch.channels_last)
-        d0 = self.input_preprocess(x)
+        d0 = self.input_preprocess(images.reshape(b * v, ch, h, w))
         patches = self.patchify(d0)  # (BV, c, T, T)
         c, t = patches.shape[1], patches.shape[-1]
         tokens = patches.reshape(b, v, c, t * t).transpose(2, 3).reshape(b, v * t * t, c)

@@ -87,7 +87,8 @@ class NetworkConfig:
     # the yaw scan's crop centre). 0 = RVT's horizontal side views.
     side_tilt_deg: float = 0.0
     logit_scale_init: float = math.log(1 / 0.07)
-    channels_last: bool = False  # NHWC conv activations: the layout tensor-core convolutions want on GPUs
+    # NHWC conv activations (the same values): None = on the CPU only (ConvBlock says why), True/False everywhere.
+    channels_last: bool | None = None
 
     def __post_init__(self) -> None:
         if self.img_size % self.patch_size:

@@ -8,7 +8,7 @@ from pathlib import Path
 
 import pytest
 
-from sigma_policy.configuration_sigma import PRESETS, SigmaConfig, saved_heatmap_fusion
+from sigma_policy.configuration_sigma import PRESETS, SigmaConfig
 
 METHOD_MD = Path(__file__).resolve().parents[2] / "docs" / "method.md"
 
@@ -120,8 +120,8 @@ def test_a_saved_checkpoint_acts_with_its_own_heatmap_fusion_or_else_its_presets
         ({"preset": "small", "heatmap_fusion": "sum"}, "sum"),
         ({"preset": "paper", "heatmap_fusion": "product"}, "product"),
     ):
-        (tmp_path / "config.json").write_text(json.dumps(saved))
-        assert saved_heatmap_fusion(tmp_path) == acting, saved
-    (tmp_path / "config.json").write_text(json.dumps({"preset": "huge"}))
-    with pytest.raises(ValueError, match=r"config\.json: preset must be one of .* got 'huge'"):
-        saved_heatmap_fusion(tmp_path)
+        (tmp_path / "config.json").write_text(json.dumps({"type": "sigma", "device": "cpu", **saved}))
+        assert SigmaConfig.from_pretrained(tmp_path).heatmap_fusion == acting, saved
+    (tmp_path / "config.json").write_text(json.dumps({"type": "sigma", "device": "cpu", "preset": "huge"}))
+    with pytest.raises(ValueError, match=r"config\.json: policy\.preset must be one of .* got 'huge'"):
+        SigmaConfig.from_pretrained(tmp_path)

@@ -327,3 +327,21 @@ def test_a_pixels_skip_features_are_a_function_of_that_pixel_alone():
             d0 = net._encode_views(moved, net.pos_encoding)[1]
             changed = (d0[0, :, 16, 16] - base[0, :, 16, 16]).abs().max() > 1e-6
             assert changed == (shift == 0), shift
+
+
+def test_activation_layout_leaves_every_output_and_gradient_as_it_was():
+    # ConvBlock's NHWC default on the CPU is a speed choice: the network computes the same function.
+    cfg = dataclasses.replace(SMALL, local_channels=4, yaw_scan_px=12, use_proprio=True)
+    grads = {}
+    for layout in (False, None):
+        torch.manual_seed(0)
+        net = SigmaNetwork(dataclasses.replace(cfg, channels_last=layout), 12, 12, lang_length=6)
+        img, tok, sent, goal = inputs(cfg)
+        out = net(
+            img, tok, sent, goal, torch.rand(2, cfg.proprio_dim, generator=torch.Generator().manual_seed(1))
+        )
+        loss = out.trans.square().mean() + out.rot_logits.square().mean() + out.goal_feat.square().mean()
+        loss.backward()
+        grads[layout] = [out.trans, out.rot_logits] + [p.grad for p in net.parameters()]
+    for nchw, auto in zip(grads[False], grads[None], strict=True):
+        torch.testing.assert_close(auto, nchw, rtol=1e-4, atol=1e-5)
