@@ -29,7 +29,7 @@ class ConvBlock(nn.Sequential):
 
     ``channels_last``: the layout of the activations, the same values either way. None (the default) = NHWC on the
     CPU, where oneDNN's NCHW convolutions reorder every input, output and gradient to a blocked layout and back (a
-    `small` training step on 2 AVX2 cores: 1.16x faster in NHWC, docs/learning.md "Training speed"), and NCHW
+    `small` training step on 2 AVX2 cores: 1.11-1.16x faster in NHWC, docs/learning.md "Training speed"), and NCHW
     elsewhere (on an H100 NHWC did not help in eager mode, docs/gpu.md).
     """
 
