@@ -39,7 +39,6 @@ from lerobot.configs.types import FeatureType, PolicyFeature
 from tqdm import tqdm
 
 from sigma_policy.configuration_sigma import SigmaConfig
-from sigma_policy.layers import ConvBlock
 from sigma_policy.modeling_sigma import SigmaPolicy
 
 BOUNDS = [-0.3, -0.3, 0.7, 0.3, 0.3, 1.3]
@@ -168,9 +167,7 @@ def build(cfg: PolicyBenchConfig, contrastive: bool, batch_size: int, layout: st
         use_contrastive=contrastive,
     )
     policy = SigmaPolicy(policy_cfg).to(cfg.device)
-    for module in policy.modules():
-        if isinstance(module, ConvBlock):
-            module.channels_last = {"auto": None, "nchw": False}[layout]
+    policy.network.set_conv_layout({"auto": None, "nchw": False}[layout])
     optimizer = policy_cfg.get_optimizer_preset().build(policy.get_optim_params())
     train_batch = synthetic_batch(cams, cfg.camera_size, batch_size, 2, cfg.device)
     train_batch["action"] = torch.tensor(

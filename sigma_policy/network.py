@@ -151,11 +151,15 @@ class SigmaNetwork(nn.Module):
             nn.Linear(h2, 3 * cfg.num_rotation_bins + 4),
         )
         self.contrastive = ContrastiveHeads(cfg, lang_sentence_dim) if cfg.use_contrastive else None
-        for module in self.modules():
-            if isinstance(module, ConvBlock):
-                module.channels_last = cfg.channels_last
+        self.set_conv_layout(cfg.channels_last)
 
     # ------------------------------------------------------------------ helpers
+    def set_conv_layout(self, channels_last: bool | None) -> None:
+        """Every convolution's activation layout (``NetworkConfig.channels_last``; the same values either way)."""
+        for module in self.modules():
+            if isinstance(module, ConvBlock):
+                module.channels_last = channels_last
+
     def num_parameters(self, inference_only: bool = False) -> int:
         """Parameter count; ``inference_only`` leaves out the contrastive heads."""
         total = sum(p.numel() for p in self.parameters())
