@@ -14,7 +14,8 @@ Inference latency is compared with the goal of issue 6 (<= 1 s per action on CPU
     python -m benchmarks.bench_policy --steps 2 --reps 3 --publish false
 
 Flags are draccus-style (``--batch_size``, ``--camera_size``, ``--contrastive false`` to time the baseline only,
-``--compare_layouts true`` to time the Σ-agent step with NCHW convolutions too).
+``--compare_layouts true`` to time the Σ-agent step with NCHW convolutions too, ``--compare_views '[top,front,left]'``
+to time it rendering only those virtual views too: RVT-2's three, docs/method.md §4.1).
 ``benchmarks/bench_network.py`` is the torch-only variant (renderer + network + losses + LAMB, random language
 tokens) for machines without LeRobot.
 
@@ -87,6 +88,8 @@ class Variant:
     contrastive: bool
     # The convolutions' activation layout: "auto" (NHWC on the CPU, sigma_policy/layers.py ConvBlock) or "nchw".
     layout: str
+    # The virtual views rendered (None = the preset's five).
+    views: list[str] | None
     policy: SigmaPolicy
     optimizer: torch.optim.Optimizer
     train_batch: dict
@@ -140,6 +143,9 @@ class PolicyBenchConfig:
     # Also time the Σ-agent step with NCHW convolution activations (the layout before 2026-12-06; on the CPU the
     # default is NHWC): the ratio is what the layout buys on this machine.
     compare_layouts: bool = False
+    # Also time the Σ-agent step rendering only these virtual views (e.g. '[top,front,left]', RVT-2's three;
+    # docs/method.md §4.1): the ratio is what the fewer views buy on this machine.
+    compare_views: list[str] | None = None
     # Write benchmarks/results/policy.md (+ .json), the fragment RESULTS.md includes.
     publish: bool = True
     # Where the fragment goes (default: benchmarks/results).
@@ -152,9 +158,15 @@ class PolicyBenchConfig:
             raise ValueError(f"--device {self.device}: CUDA is not available on this machine")
 
 
-def build(cfg: PolicyBenchConfig, contrastive: bool, batch_size: int, layout: str = "auto") -> Variant:
-    """The policy of the preset (``use_contrastive`` and the convolutions' ``layout`` as given), its LAMB optimiser
-    and synthetic inputs."""
+def build(
+    cfg: PolicyBenchConfig,
+    contrastive: bool,
+    batch_size: int,
+    layout: str = "auto",
+    views: list[str] | None = None,
+) -> Variant:
+    """The policy of the preset (``use_contrastive``, the convolutions' ``layout`` and the virtual ``views`` as
+    given), its LAMB optimiser and synthetic inputs."""
     cams = [f"cam{i}" for i in range(cfg.cameras)]
     torch.manual_seed(0)
     policy_cfg = SigmaConfig(
@@ -165,6 +177,7 @@ def build(cfg: PolicyBenchConfig, contrastive: bool, batch_size: int, layout: st
         depth_unit="m",
         scene_bounds=BOUNDS,
         use_contrastive=contrastive,
+        **({"virtual_views": views} if views else {}),
     )
     policy = SigmaPolicy(policy_cfg).to(cfg.device)
     policy.network.set_conv_layout({"auto": None, "nchw": False}[layout])
@@ -174,7 +187,7 @@ def build(cfg: PolicyBenchConfig, contrastive: bool, batch_size: int, layout: st
         [[0.0, 0.05, 0.85, 1, 0, 0, 0, 1, 0]] * batch_size, device=cfg.device
     )
     obs = synthetic_batch(cams, cfg.camera_size, 1, None, cfg.device)
-    return Variant(contrastive, layout, policy, optimizer, train_batch, obs)
+    return Variant(contrastive, layout, views, policy, optimizer, train_batch, obs)
 
 
 def measure(cfg: PolicyBenchConfig, variants: list[Variant], steps: int, reps: int) -> list[dict]:
@@ -210,6 +223,7 @@ def measure(cfg: PolicyBenchConfig, variants: list[Variant], steps: int, reps: i
         row = {
             "contrastive": v.contrastive,
             "layout": v.layout,
+            "views": v.views,
             "params_train": v.policy.network.num_parameters(),
             "params_inference": v.policy.network.num_parameters(inference_only=True),
             "train_samples_per_s": round(batch_size / statistics.median(v.train_s), 3),
@@ -242,6 +256,7 @@ def markdown(
         name = (
             "Σ-agent (BC + contrastive, current + goal render)" if r["contrastive"] else "BC only (baseline)"
         ) + (", NCHW convolutions" if r["layout"] == "nchw" else "")
+        name += f", views {', '.join(r['views'])}" if r.get("views") else ""
         ms = r["inference_ms_per_action"]
         verdict = f"{ms / goal_ms:.2f}x the budget: {'met' if ms <= goal_ms else 'not met'}"
         mem = f"{r['peak_mem_gb']:.2f} GiB | " if gpu_mem else ""
@@ -267,6 +282,8 @@ def main(cfg: PolicyBenchConfig) -> list[dict]:
     variants = [build(cfg, c, batch_size) for c in ([False, True] if cfg.contrastive else [False])]
     if cfg.compare_layouts:
         variants.append(build(cfg, cfg.contrastive, batch_size, layout="nchw"))
+    if cfg.compare_views:
+        variants.append(build(cfg, cfg.contrastive, batch_size, views=cfg.compare_views))
     rows = measure(cfg, variants, steps, reps)
     device = torch.cuda.get_device_name(cfg.device) if gpu else f"CPU, {cfg.threads} torch threads"
     table = markdown(cfg, rows, device, batch_size, steps, reps)
@@ -299,8 +316,12 @@ def main(cfg: PolicyBenchConfig) -> list[dict]:
         else ""
     )
     if cfg.compare_layouts:
+        nchw = next(r for r in rows if r["layout"] == "nchw")
+        overhead += f", {last['train_samples_per_s'] / nchw['train_samples_per_s']:.2f}x NCHW convolutions"
+    if cfg.compare_views:
         overhead += (
-            f", {last['train_samples_per_s'] / rows[-1]['train_samples_per_s']:.2f}x NCHW convolutions"
+            f", {rows[-1]['train_samples_per_s'] / last['train_samples_per_s']:.2f}x with views "
+            f"{','.join(cfg.compare_views)}"
         )
     print(
         f"bench_policy: {cfg.config} on {device}: {last['train_samples_per_s']:.2f} train samples/s "

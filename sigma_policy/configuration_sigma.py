@@ -83,6 +83,7 @@ from sigma_policy.instruction_contrast import check_contrast_weight
 from sigma_policy.lamb import LambConfig
 from sigma_policy.network_config import NetworkConfig
 from sigma_policy.test_time import check_yaw_angles
+from sigma_policy.views import VIEW_NAMES, view_indices
 from sigma_policy.weight_average import check_ema_decay
 
 PRESETS: dict[str, dict[str, Any]] = {
@@ -256,6 +257,10 @@ class SigmaConfig(PreTrainedConfig):
     # e.g. PickPlace's bins, whose walls hide the bread and the can from horizontal views (docs/learning.md). 0 =
     # RVT's horizontal side views (every preset: 45° and 30° both fitted and scored worse on PickPlace).
     side_tilt_deg: float = 0.0
+    # The virtual views rendered (sigma_policy/views.py "Fewer views"): RVT's five (every preset), or a subset with
+    # 'top', one of 'front'/'back' and one of 'left'/'right'. RVT-2's three trained 1.6x faster on 2 CPU cores but
+    # lost Stack's order on the demo's data (docs/learning.md "Three virtual views").
+    virtual_views: list[str] = field(default_factory=lambda: list(VIEW_NAMES))
     # Rotation-equivariant yaw scores (sigma_policy/yaw_scan.py): side (pixels) of the top-view crop around the
     # keyframe position that is turned to every yaw bin and scored by one CNN (0 = off); its channels; the training
     # jitter (pixels, uniform per axis) of the crop's centre about the target's projection, standing in for the
@@ -400,6 +405,10 @@ class SigmaConfig(PreTrainedConfig):
                 raise ValueError(f"policy.instruction_bounds[{instruction!r}] must be a box of 6, got {box}")
         self.tta_yaw_deg = check_yaw_angles(self.tta_yaw_deg, self.num_rotation_bins)
         self.heatmap_fusion = check_heatmap_fusion(self.heatmap_fusion)
+        try:
+            view_indices(self.virtual_views)
+        except ValueError as e:
+            raise ValueError(f"policy.{e}") from None
         self.instruction_contrast = check_contrast_weight(self.instruction_contrast)
         if not self.instruction_negative_weight >= 0.0:
             raise ValueError(
@@ -559,4 +568,5 @@ class SigmaConfig(PreTrainedConfig):
         values = {k: getattr(self, k) for k in names if hasattr(self, k) and getattr(self, k) is not None}
         values["proprio_dim"] = 3 + 3 * bool(self.proprio_position) + 6 * bool(self.proprio_orientation)
         values["head_pool_sigma"] = self.gt_heatmap_sigma
+        values["views"] = view_indices(self.virtual_views)
         return NetworkConfig(**values)

@@ -32,6 +32,7 @@ __all__ = ["SHARED_FIELDS", "check_members", "mean_probability_logits"]
 SHARED_FIELDS = (
     "img_size",
     "side_tilt_deg",
+    "virtual_views",
     "render_radius_px",
     "scene_bounds",
     "per_task_bounds",

@@ -10,7 +10,8 @@ Back-projection (docs/method.md §6.2). Candidates are the ``S^3`` cube voxel ce
 view (``(1 +- g_k) S / 2 = k + 0.5`` or ``S - k - 0.5``), so RVT's 4-neighbour interpolation reduces to reading
 one pixel, and each view's score depends on only two of the three voxel indices. The score of voxel ``(a, b, c)``
 is the mean over views of the per-view softmax probabilities at its pixels, evaluated by broadcasting
-``top[a, b] + front[a, c] + back[a, c] + left[b, c] + right[b, c]`` in chunks; the argmax voxel centre is the
+``top[a, b] + front[a, c] + back[a, c] + left[b, c] + right[b, c]`` in chunks (the rendered views' terms only,
+when fewer are rendered: ``views``, sigma_policy/views.py "Fewer views"); the argmax voxel centre is the
 prediction. Never a cached 10 M-point grid; peak memory about ``B * chunk * S^2`` floats. With
 ``fusion="product"`` the per-view maps are log-probabilities instead, so the same sum is the log of the product of
 the views' probabilities (docs/method.md §14.6).
@@ -38,7 +39,7 @@ import math
 import torch
 from torch import Tensor
 
-from sigma_policy.views import VIEW_AXES, project_points, tilt_slope
+from sigma_policy.views import ALL_VIEWS, VIEW_AXES, project_points, tilt_slope
 
 __all__ = [
     "HEATMAP_FUSIONS",
@@ -123,24 +124,26 @@ def heatmap_to_cube_point(
     refine_px: int = 0,
     side_tilt_deg: float = 0.0,
     fusion: str = "sum",
+    views: tuple[int, ...] = ALL_VIEWS,
 ) -> Tensor:
     """Factorised argmax over the ``S^3`` voxel grid of the views' fused score: logits ``(B, V, H, W)`` -> cube
     point ``(B, 3)``: the argmax voxel centre, refined below a voxel when ``refine_px > 0`` (module docstring).
     ``fusion`` (:data:`HEATMAP_FUSIONS`): ``"sum"`` scores a voxel by the sum of its projections' softmax
     probabilities (RVT), ``"product"`` by the sum of their log-probabilities, i.e. their product: every view must
     agree, so four side views sure of a wrong place no longer outvote a top view sure of the right one.
-    ``chunk`` x-slices are scored at a time; ``side_tilt_deg`` is the views' tilt."""
+    ``chunk`` x-slices are scored at a time; ``side_tilt_deg`` is the views' tilt; ``views`` the indices into
+    :data:`~sigma_policy.views.VIEW_AXES` of the logits' views."""
     B, V, H, W = logits.shape
     S = img_size
-    if (len(VIEW_AXES), S, S) != (V, H, W):
-        raise ValueError(f"logits must be (B, {len(VIEW_AXES)}, {S}, {S}), got {tuple(logits.shape)}")
+    if (len(views), S, S) != (V, H, W):
+        raise ValueError(f"logits must be (B, {len(views)}, {S}, {S}), got {tuple(logits.shape)}")
     normalise = torch.softmax if check_heatmap_fusion(fusion, "fusion") == "sum" else torch.log_softmax
     per_view = normalise(logits.float().flatten(2), dim=-1).view(B, V, S, S)  # probabilities, or their logs
     if tilt_slope(side_tilt_deg) > 0.0:
-        return _projected_grid_point(per_view, chunk, refine_px, side_tilt_deg)
+        return _projected_grid_point(per_view, chunk, refine_px, side_tilt_deg, views)
     pair_sum: dict[tuple[int, int], Tensor] = {}
-    for view in range(V):
-        score, axes = _view_score(per_view[:, view], view, S)
+    for i, view in enumerate(views):
+        score, axes = _view_score(per_view[:, i], view, S)
         pair_sum[axes] = pair_sum[axes] + score if axes in pair_sum else score
     zeros = torch.zeros(B, S, S, device=logits.device)
     xy, xz, yz = (pair_sum.get(k, zeros) for k in ((0, 1), (0, 2), (1, 2)))
@@ -174,14 +177,17 @@ def heatmap_to_cube_point(
 
 
 @functools.lru_cache(maxsize=8)
-def _view_reads(S: int, side_tilt_deg: float, device: torch.device) -> tuple[Tensor, Tensor, Tensor]:
+def _view_reads(
+    S: int, side_tilt_deg: float, device: torch.device, views: tuple[int, ...]
+) -> tuple[Tensor, Tensor, Tensor]:
     """Per view, where a voxel centre reads it: its column ``(V, S)`` by its index along the view's u axis (a
     pixel centre), and the upper of the two pixel rows around its projection with the weight of the lower one,
     ``(V, S * S)`` each, by its indices along the view's v and depth axes (a tilted side view's row mixes the
     two; the top view's ignores the depth). ``V * S^2`` numbers, not a table over the ``S^3`` grid."""
     g = voxel_centres(S, device)
     cols, rows = [], []
-    for view, (u_axis, _, v_axis, _, d_axis, _) in enumerate(VIEW_AXES):
+    for view in views:
+        u_axis, _, v_axis, _, d_axis, _ = VIEW_AXES[view]
         line = torch.zeros(S, 3, device=device)
         line[:, u_axis] = g
         cols.append(project_points(line[None], S, side_tilt_deg)[0][0, :, view, 0].floor().long())
@@ -194,23 +200,28 @@ def _view_reads(S: int, side_tilt_deg: float, device: torch.device) -> tuple[Ten
     return torch.stack(cols).clamp(0, S - 1), r0, row - r0
 
 
-def _voxel_taps(voxels: Tensor, S: int, side_tilt_deg: float) -> tuple[Tensor, Tensor, Tensor]:
+def _voxel_taps(
+    voxels: Tensor, S: int, side_tilt_deg: float, views: tuple[int, ...]
+) -> tuple[Tensor, Tensor, Tensor]:
     """Where voxel centres (flat x-major indices, any shape ``(...)``) read each view ``(V, ...)``: the flat
     indices of the two pixels in their column that straddle their projection, and the weight of the second
     (linear interpolation along the rows; a voxel centre lands on a pixel centre in columns, and in rows too when
     a view is not tilted)."""
-    cols, upper, weight = _view_reads(S, float(side_tilt_deg), voxels.device)
+    cols, upper, weight = _view_reads(S, float(side_tilt_deg), voxels.device, views)
     cell = (voxels // (S * S), voxels // S % S, voxels % S)
     i0, w = [], []
-    for view, (u_axis, _, v_axis, _, d_axis, _) in enumerate(VIEW_AXES):
+    for i, view in enumerate(views):
+        u_axis, _, v_axis, _, d_axis, _ = VIEW_AXES[view]
         plane = cell[v_axis] * S + cell[d_axis]
-        i0.append(upper[view][plane] * S + cols[view][cell[u_axis]])
-        w.append(weight[view][plane])
+        i0.append(upper[i][plane] * S + cols[i][cell[u_axis]])
+        w.append(weight[i][plane])
     i0 = torch.stack(i0)
     return i0, i0 + S, torch.stack(w)
 
 
-def _projected_grid_point(per_view: Tensor, chunk: int, refine_px: int, side_tilt_deg: float) -> Tensor:
+def _projected_grid_point(
+    per_view: Tensor, chunk: int, refine_px: int, side_tilt_deg: float, views: tuple[int, ...]
+) -> Tensor:
     """:func:`heatmap_to_cube_point` for tilted side views: every voxel centre projected (module docstring)."""
     B, S = per_view.shape[0], per_view.shape[-1]
     flat = per_view.flatten(2)
@@ -218,7 +229,7 @@ def _projected_grid_point(per_view: Tensor, chunk: int, refine_px: int, side_til
     def score(voxels: Tensor) -> Tensor:
         """The views' interpolated scores (probabilities, or their logs under product fusion) summed, ``(B, M)``,
         at flat voxel indices ``(M,)``, or ``(B, M)`` per sample."""
-        i0, i1, ww = _voxel_taps(voxels, S, float(side_tilt_deg))
+        i0, i1, ww = _voxel_taps(voxels, S, float(side_tilt_deg), views)
         if voxels.ndim == 1:
             i0, i1, ww = (t.expand(B, -1, -1) for t in (i0, i1, ww))
         else:
@@ -246,23 +257,30 @@ def _projected_grid_point(per_view: Tensor, chunk: int, refine_px: int, side_til
     return point + torch.stack(shifts, -1) * (2 / S)
 
 
-def predicted_uv(logits: Tensor, side_tilt_deg: float = 0.0, fusion: str = "sum") -> Tensor:
+def predicted_uv(
+    logits: Tensor, side_tilt_deg: float = 0.0, fusion: str = "sum", views: tuple[int, ...] = ALL_VIEWS
+) -> Tensor:
     """Pixel coordinates ``(B, V, 2)`` of the projections of the 3D point the translation logits ``(B, V, H, W)``
     predict (:func:`heatmap_to_cube_point` with ``fusion``): the views agree on one point, as the training
-    target's projections do, even where one view's own peak lies elsewhere."""
+    target's projections do, even where one view's own peak lies elsewhere; ``views`` as there."""
     size = logits.shape[-1]
-    point = heatmap_to_cube_point(logits, size, side_tilt_deg=side_tilt_deg, fusion=fusion)
-    return project_points(point[:, None].to(logits.dtype), size, side_tilt_deg)[0][:, 0]
+    point = heatmap_to_cube_point(logits, size, side_tilt_deg=side_tilt_deg, fusion=fusion, views=views)
+    return project_points(point[:, None].to(logits.dtype), size, side_tilt_deg, views)[0][:, 0]
 
 
 def heads_at_point(
-    logits: Tensor, side_tilt_deg: float, sigma_px: float, fusion: str = "sum"
+    logits: Tensor,
+    side_tilt_deg: float,
+    sigma_px: float,
+    fusion: str = "sum",
+    views: tuple[int, ...] = ALL_VIEWS,
 ) -> dict[str, Tensor]:
     """The network's ``head_heatmap`` and ``head_uv`` arguments that run its heads at the point the translation
     logits ``(B, V, H, W)`` predict (:func:`predicted_uv`): pooled there with a Gaussian of ``sigma_px`` pixels, as
     training pools them at the target, and the yaw scan centred there. For a second run of the heads after the
-    logits were changed (instruction contrast, ensembles); ``fusion`` as in :func:`heatmap_to_cube_point`."""
-    uv = predicted_uv(logits, side_tilt_deg, fusion)
+    logits were changed (instruction contrast, ensembles); ``fusion`` and ``views`` as in
+    :func:`heatmap_to_cube_point`."""
+    uv = predicted_uv(logits, side_tilt_deg, fusion, views)
     return {"head_heatmap": gaussian_heatmaps(uv, logits.shape[-1], sigma=sigma_px), "head_uv": uv}
 
 

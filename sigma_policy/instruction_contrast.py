@@ -38,6 +38,7 @@ from torch import Tensor
 
 from sigma_policy.heatmap import gaussian_heatmaps, heads_at_point
 from sigma_policy.network import NetworkOutput
+from sigma_policy.views import ALL_VIEWS
 
 __all__ = [
     "check_contrast_weight",
@@ -113,6 +114,7 @@ def contrast_instructions(
     heads_sigma_px: float,
     side_tilt_deg: float = 0.0,
     fusion: str = "sum",
+    views: tuple[int, ...] = ALL_VIEWS,
 ) -> NetworkOutput:
     """``out`` with its translation logits contrasted against the task's other instructions
     (:func:`contrasted_logits`) and its heads run again at the contrasted point, pooled there (a Gaussian of
@@ -128,7 +130,7 @@ def contrast_instructions(
     if not others:
         return out
     trans = contrasted_logits(out.trans, torch.stack(others), torch.stack(valid), weight)
-    pooled = run(tasks, **heads_at_point(trans, side_tilt_deg, heads_sigma_px, fusion))
+    pooled = run(tasks, **heads_at_point(trans, side_tilt_deg, heads_sigma_px, fusion, views))
     pooled.trans = trans
     return pooled
 

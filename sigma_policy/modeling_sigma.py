@@ -9,8 +9,8 @@ Per sample and frame (current frame i, and in training its goal, keyframe i+1, f
    yaw about the target position; the goal gets its own draw, pivoting on the goal frame's end-effector position;
    ``augmentation.py``).
 3. Crop to the sample's box (``scene_bounds``, or its task's with ``per_task_bounds``), map to the canonical cube
-   [-1, 1]^3 (``pointcloud.py``), render 5 orthographic virtual views (B, 5, 10, img_size, img_size;
-   ``renderer.py``); training adds the uniform render noise of docs/method.md §4.3 on channels 0-6.
+   [-1, 1]^3 (``pointcloud.py``), render the orthographic virtual views (B, V, 10, img_size, img_size; V = 5, or
+   fewer with ``virtual_views``; ``renderer.py``); training adds the uniform render noise of docs/method.md §4.3 on channels 0-6.
 4. The network (``network.py``) with frozen, cached text-encoder tokens of ``task``.
 
 Losses (docs/method.md §6.1, §7; ``behaviour_cloning.py``): translation = soft-target cross-entropy of each view's
@@ -59,6 +59,7 @@ from sigma_policy.test_time import (
     yaw_about_box_centre,
 )
 from sigma_policy.text_encoder import make_text_encoder
+from sigma_policy.views import view_indices
 from sigma_policy.weight_average import WeightAverage
 
 
@@ -126,7 +127,10 @@ class SigmaPolicy(PreTrainedPolicy):
         self._lang_cache: dict[str, tuple[Tensor, Tensor]] = {}
         self._build_network()
         self.renderer = VirtualViewRenderer(
-            img_size=config.img_size, radius_px=config.render_radius_px, side_tilt_deg=config.side_tilt_deg
+            img_size=config.img_size,
+            radius_px=config.render_radius_px,
+            side_tilt_deg=config.side_tilt_deg,
+            views=view_indices(config.virtual_views),
         )
         self.register_buffer(
             "scene_bounds", torch.tensor(config.scene_bounds, dtype=torch.float32), persistent=False
@@ -352,6 +356,7 @@ class SigmaPolicy(PreTrainedPolicy):
                 cfg.gt_heatmap_sigma,
                 cfg.side_tilt_deg,
                 cfg.heatmap_fusion,
+                self.renderer.views,
             )
         point_cube = heatmap_to_cube_point(
             out.trans.float(),
@@ -359,6 +364,7 @@ class SigmaPolicy(PreTrainedPolicy):
             refine_px=cfg.heatmap_refine_px,
             side_tilt_deg=cfg.side_tilt_deg,
             fusion=cfg.heatmap_fusion,
+            views=self.renderer.views,
         )
         point = cube_to_world(point_cube, bounds)
         rotation_probs = torch.softmax(out.rot_logits.float(), -1)
@@ -390,7 +396,9 @@ class SigmaPolicy(PreTrainedPolicy):
             m._run_network(views, tasks, batch, bounds, transforms=transforms) for m in policies[1:]
         ]
         trans = mean_probability_logits([o.trans for o in outs], event_dims=2)  # per view
-        heads = heads_at_point(trans, cfg.side_tilt_deg, cfg.gt_heatmap_sigma, cfg.heatmap_fusion)
+        heads = heads_at_point(
+            trans, cfg.side_tilt_deg, cfg.gt_heatmap_sigma, cfg.heatmap_fusion, self.renderer.views
+        )
         pooled = [
             p._run_network(views, tasks, batch, bounds, transforms=transforms, **heads) for p in policies
         ]

@@ -276,7 +276,7 @@ class SigmaNetwork(nn.Module):
         lifted = (self.local_encoder is not None and head_heatmap is None) or (
             self.yaw_scanner is not None and head_uv is None
         )
-        pred_uv = predicted_uv(trans.detach(), cfg.side_tilt_deg, fusion) if lifted else None
+        pred_uv = predicted_uv(trans.detach(), cfg.side_tilt_deg, fusion, cfg.views) if lifted else None
         if local is not None:
             weights = (
                 gaussian_heatmaps(pred_uv, cfg.img_size, sigma=cfg.head_pool_sigma)

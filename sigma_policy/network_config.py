@@ -8,7 +8,7 @@ import math
 from dataclasses import dataclass
 from typing import Literal
 
-from sigma_policy.views import tilt_slope
+from sigma_policy.views import ALL_VIEWS, VIEW_NAMES, tilt_slope, view_indices
 
 __all__ = ["VIEW_CHANNELS", "NetworkConfig"]
 
@@ -19,7 +19,9 @@ VIEW_CHANNELS = 10  # a rendered view: xyz, rgb, depth, view id, row, col (sigma
 class NetworkConfig:
     """Architecture numbers; the defaults are the paper / released-code configuration (docs/method.md §5, §12)."""
 
-    num_views: int = 5
+    # The rendered views, indices into sigma_policy/views.py VIEW_NAMES: RVT's five, or a subset with the top view
+    # (RVT-2's three; the policy config's ``virtual_views``).
+    views: tuple[int, ...] = ALL_VIEWS
     in_channels: int = VIEW_CHANNELS
     img_size: int = 220
     patch_size: int = 11
@@ -100,6 +102,9 @@ class NetworkConfig:
         if self.num_queries < 1:
             raise ValueError(f"num_queries must be >= 1, got {self.num_queries}")
         tilt_slope(self.side_tilt_deg)  # 0 <= angle < 90
+        if list(self.views) != sorted(set(self.views)) or not set(self.views) <= set(ALL_VIEWS):
+            raise ValueError(f"views must be increasing indices into {VIEW_NAMES}, got {self.views}")
+        view_indices([VIEW_NAMES[v] for v in self.views])  # the top view and every axis pair
         if self.local_channels < 0 or (self.local_channels and not self.local_dilations):
             raise ValueError("local_channels must be >= 0, with at least one dilation when > 0")
         if self.local_in_decoder and not self.local_channels:
@@ -121,6 +126,10 @@ class NetworkConfig:
     def patch_width(self) -> int:
         """Channels of a patch token before the Linear to ``attn_dim``: ``patch_channels``, else ``im_channels``."""
         return self.patch_channels or self.im_channels
+
+    @property
+    def num_views(self) -> int:
+        return len(self.views)
 
     @property
     def tokens_per_side(self) -> int:

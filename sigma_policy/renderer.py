@@ -1,7 +1,7 @@
 """Pure-PyTorch orthographic virtual-view renderer (replaces RVT-1's PyTorch3D point renderer).
 
-Five fixed orthographic views of the canonical cube ``[-1, 1]^3`` (docs/method.md §4.1), each ``img_size`` x
-``img_size`` pixels; which cube coordinates give each view's columns, rows and depth is the table of
+Five fixed orthographic views of the canonical cube ``[-1, 1]^3`` (docs/method.md §4.1), or a subset of them with
+the top view (``views``; RVT-2's three), each ``img_size`` x ``img_size`` pixels; which cube coordinates give each view's columns, rows and depth is the table of
 :mod:`sigma_policy.views` (RVT's axis-aligned views, or with ``side_tilt_deg`` side views that look down over a
 container's rim).
 
@@ -23,7 +23,7 @@ Output channels for ``F`` feature channels (``F = 3``, RGB, gives the paper's 10
 ``0-2`` cube xyz of the winning point, ``3 .. 3+F-1`` its features, then depth, then 3 pixel-location channels.
 Depth is the winner's view depth ``z`` (in ``[0, 2]`` for points in the cube) minus the mean of ``z`` over the
 non-empty pixels of that image; empty pixels get depth ``-1`` and zeros in the xyz/feature channels. The
-location channels are the view id ``linspace(-1, 1, 5)[view]``, the row coordinate ``linspace(-1, 1, H)`` and the
+location channels are the view id ``linspace(-1, 1, V)[view]`` (V rendered views), the row coordinate ``linspace(-1, 1, H)`` and the
 column coordinate ``linspace(-1, 1, W)``.
 
 Implementation (no Python loop over points or pixels). Each view depends on two coordinates for its image
@@ -59,7 +59,16 @@ import torch
 from torch import Tensor, nn
 
 from sigma_policy.render_memory import Workspace, cpu_pool, output_pool, workspace
-from sigma_policy.views import VIEW_AXES, VIEW_NAMES, project_points, tilted_coordinates, view_axes
+from sigma_policy.views import (
+    ALL_VIEWS,
+    SIDE_VIEWS,
+    VIEW_AXES,
+    VIEW_NAMES,
+    project_points,
+    tilt_slope,
+    tilted_coordinates,
+    view_axes,
+)
 
 __all__ = ["VIEW_AXES", "VIEW_NAMES", "VirtualViewRenderer", "project_points"]
 
@@ -90,7 +99,7 @@ def _one_plus(c: Tensor, sign: int, out: Tensor) -> Tensor:
 
 
 class VirtualViewRenderer(nn.Module):
-    """Render cube-space point clouds into 5 orthographic views (see the module docstring for conventions).
+    """Render cube-space point clouds into orthographic views (see the module docstring for conventions).
 
     Args:
         img_size: output height = width in pixels (220 in the paper).
@@ -101,6 +110,8 @@ class VirtualViewRenderer(nn.Module):
             a boolean mask first (fewer atomics, but the compaction costs more on both devices), ``"auto"``
             (default) ``"dummy"`` on CPU and ``"spread"`` elsewhere.
         side_tilt_deg: the four side views look down by this angle (sigma_policy/views.py); 0 = RVT's views.
+        views: which views to render, increasing indices into ``VIEW_NAMES`` (sigma_policy/views.py
+            ``view_indices``); all five by default.
     """
 
     def __init__(
@@ -109,6 +120,7 @@ class VirtualViewRenderer(nn.Module):
         radius_px: float = 1.32,
         scatter_mode: str = "auto",
         side_tilt_deg: float = 0.0,
+        views: tuple[int, ...] = ALL_VIEWS,
     ) -> None:
         super().__init__()
         if img_size < 1:
@@ -121,15 +133,20 @@ class VirtualViewRenderer(nn.Module):
             raise ValueError(f"scatter_mode must be one of {_SCATTER_MODES}, got {scatter_mode!r}")
         self.scatter_mode = scatter_mode
         self.side_tilt_deg = float(side_tilt_deg)
-        self._view_axes = view_axes(self.side_tilt_deg)  # validates the angle
+        if not views or any(v not in ALL_VIEWS for v in views) or list(views) != sorted(set(views)):
+            raise ValueError(f"views must be increasing indices into {VIEW_NAMES}, got {views}")
+        self.views = tuple(views)
+        every = view_axes(self.side_tilt_deg)  # validates the angle
+        self._view_axes = tuple(every[v] for v in self.views)
         self._quantities, self._view_quantities = _quantity_tables(self._view_axes)
-        self._coord_rows = 1 + max(a[2] for a in self._view_axes)  # x, y, z (+ 4 tilted side-view rows)
+        # x, y, z (+ the 4 tilted side-view rows, tilted_coordinates writes them all)
+        self._coord_rows = 3 + len(SIDE_VIEWS) * (tilt_slope(self.side_tilt_deg) > 0)
         # Candidate pixels per axis: floor(q) - reach .. floor(q) + reach (3 for r = 1.32). A pixel j more than
         # reach away has |j + 0.5 - q| >= reach + 1/2 >= r, so it cannot be covered.
         self._reach = max(0, math.ceil(self.radius_px - 0.5))
         # The coverage test is d^2 < r^2 in float32, like the brute-force reference.
         self._rr = float(torch.tensor(self.radius_px**2, dtype=torch.float32))
-        S, V = self.img_size, len(VIEW_NAMES)
+        S, V = self.img_size, len(self.views)
         lin = torch.linspace(-1, 1, S)
         loc = torch.stack(
             [
@@ -143,12 +160,12 @@ class VirtualViewRenderer(nn.Module):
 
     @property
     def num_views(self) -> int:
-        return len(VIEW_NAMES)
+        return len(self.views)
 
     def project(self, points_cube: Tensor) -> Tensor:
         """Continuous pixel coordinates ``(B, N, V, 2)`` (u = column, v = row) of cube points ``(B, N, 3)``,
         consistent with :meth:`forward`: the point rasterises into pixel ``(floor(v), floor(u))``."""
-        return project_points(points_cube, self.img_size, self.side_tilt_deg)[0]
+        return project_points(points_cube, self.img_size, self.side_tilt_deg, self.views)[0]
 
     @torch.no_grad()
     def zbuffer(self, points_cube: Tensor, mask: Tensor | None = None) -> tuple[Tensor, Tensor]:
@@ -261,7 +278,7 @@ class VirtualViewRenderer(nn.Module):
         fill: int | None = None,
     ) -> None:
         """Scatter-min the keys of ``m`` points ``pts (m, 3)`` (flat indices ``first ..``, ``ignore (m,)`` int32
-        -1/0) into every pixel their disc covers, in all 5 views; ``pixel0`` (scalar or
+        -1/0) into every pixel their disc covers, in every rendered view; ``pixel0`` (scalar or
         ``(m,)``) is the address of each point's pixel (view 0, 0, 0); ``dummy`` the slot that candidates
         outside a disc go to in ``"dummy"`` mode. ``fill``: with a scalar ``pixel0``, each view's pixels are set to
         this key right before its scatter (instead of by the caller up front), so they are still in cache."""

@@ -1,4 +1,4 @@
-"""Where the five virtual views look: which cube coordinates give each view's columns, rows and depth.
+"""Where the virtual views look: which cube coordinates give each view's columns, rows and depth.
 
 RVT's five orthographic views of the canonical cube ``[-1, 1]^3`` (docs/method.md §4.1) look along the cube's
 axes: the top view down, the four side views horizontally. For a cube point ``(x, y, z)`` and ``S = img_size``
@@ -30,6 +30,13 @@ grows along every tilted ray. Such a view is an orthographic camera elevated by 
 by ``1 / cos θ`` along its rows; the renderer, the heatmap targets and the back-projection all use this table, so
 they stay consistent. The columns and the top view are unchanged, and ``side_tilt_deg = 0`` is exactly RVT's
 geometry.
+
+**Fewer views** (``SigmaConfig.virtual_views``). RVT-2 (Goyal et al. 2024, arXiv 2406.08545) renders three of the
+five views, the top and two side views at right angles, for fewer renders and tokens. Every image axis pair must
+still be seen for the heatmaps to lift to one 3D point (sigma_policy/heatmap.py): the top view sees (x, y), the front
+or back view (x, z), the left or right view (y, z). :func:`view_indices` checks a chosen set and orders it as
+:data:`VIEW_NAMES`, so the top view is always index 0 (the yaw scan reads it, sigma_policy/yaw_scan.py). Every
+function here that returns per-view values takes ``views``, the chosen indices into :data:`VIEW_AXES`.
 """
 
 from __future__ import annotations
@@ -39,7 +46,16 @@ import math
 import torch
 from torch import Tensor
 
-__all__ = ["SIDE_VIEWS", "VIEW_AXES", "VIEW_NAMES", "project_points", "tilted_coordinates", "view_axes"]
+__all__ = [
+    "ALL_VIEWS",
+    "SIDE_VIEWS",
+    "VIEW_AXES",
+    "VIEW_NAMES",
+    "project_points",
+    "tilted_coordinates",
+    "view_axes",
+    "view_indices",
+]
 
 VIEW_NAMES: tuple[str, ...] = ("top", "front", "back", "left", "right")
 
@@ -52,6 +68,32 @@ VIEW_AXES: tuple[tuple[int, int, int, int, int, int], ...] = (
     (1, -1, 2, -1, 0, +1),  # right: camera at -x
 )
 SIDE_VIEWS: tuple[int, ...] = (1, 2, 3, 4)
+ALL_VIEWS: tuple[int, ...] = (0, 1, 2, 3, 4)
+# The image-axis pair each view sees, (u axis, v axis) sorted: top (x, y), front/back (x, z), left/right (y, z).
+_AXIS_PAIRS: tuple[tuple[int, int], ...] = tuple(tuple(sorted((a[0], a[2]))) for a in VIEW_AXES)
+
+
+def view_indices(names: list[str] | tuple[str, ...]) -> tuple[int, ...]:
+    """Indices into :data:`VIEW_NAMES` of the views ``names``, in that table's order (the top view first); a
+    ``ValueError`` naming the problem for an unknown or repeated name, a set without the top view, or one that
+    leaves an axis pair unseen (module docstring, "Fewer views")."""
+    unknown = [n for n in names if n not in VIEW_NAMES]
+    if unknown:
+        raise ValueError(f"virtual_views: unknown view(s) {unknown}; the views are {list(VIEW_NAMES)}")
+    if len(set(names)) != len(names):
+        raise ValueError(f"virtual_views: {list(names)} names a view twice")
+    views = tuple(i for i, n in enumerate(VIEW_NAMES) if n in names)
+    if 0 not in views:
+        raise ValueError(
+            f"virtual_views: {list(names)} lacks 'top' (the yaw scan and the (x, y) heatmap read it)"
+        )
+    unseen = [pair for pair in ((0, 2), (1, 2)) if pair not in {_AXIS_PAIRS[v] for v in views}]
+    if unseen:
+        need = " and ".join({(0, 2): "'front' or 'back'", (1, 2): "'left' or 'right'"}[p] for p in unseen)
+        raise ValueError(
+            f"virtual_views: {list(names)} needs {need}, or the heatmaps cannot lift to a 3D point"
+        )
+    return views
 
 
 def tilt_slope(side_tilt_deg: float) -> float:
@@ -96,16 +138,19 @@ def tilted_coordinates(
     return out
 
 
-def project_points(points_cube: Tensor, img_size: int, side_tilt_deg: float = 0.0) -> tuple[Tensor, Tensor]:
-    """Continuous pixel coordinates and view depths of cube points ``(B, N, 3)`` in all 5 views.
+def project_points(
+    points_cube: Tensor, img_size: int, side_tilt_deg: float = 0.0, views: tuple[int, ...] = ALL_VIEWS
+) -> tuple[Tensor, Tensor]:
+    """Continuous pixel coordinates and view depths of cube points ``(B, N, 3)`` in the views ``views``.
 
     Returns ``uv (B, N, V, 2)`` (u = column, v = row; pixel j covers [j, j+1)) and ``z (B, N, V)``.
     """
-    axes = view_axes(side_tilt_deg)
+    every = view_axes(side_tilt_deg)
+    axes = [every[v] for v in views]
     index = torch.tensor([[a[0], a[2], a[4]] for a in axes], device=points_cube.device).flatten()
     signs = torch.tensor([[a[1], a[3], a[5]] for a in axes], device=points_cube.device).flatten()
     coords = tilted_coordinates(points_cube, side_tilt_deg)
     # (1 + s * c) * (S / 2): multiplication by +-1 is exact, so every path computes bit-identical values.
-    q = (1 + coords[..., index] * signs.to(points_cube.dtype)).unflatten(-1, (len(VIEW_NAMES), 3))
+    q = (1 + coords[..., index] * signs.to(points_cube.dtype)).unflatten(-1, (len(axes), 3))
     uv = q[..., :2] * (img_size / 2)
     return uv, q[..., 2]

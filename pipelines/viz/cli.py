@@ -117,7 +117,7 @@ def run_policy_view(cfg: PolicyViewConfig) -> str:
     from torch.utils.data import default_collate
 
     from pipelines.checkpoints import load_policy
-    from pipelines.viz.policy import DEFAULT_VIEW_NAMES, log_policy_frame, policy_frame_outputs
+    from pipelines.viz.policy import log_policy_frame, policy_frame_outputs
 
     if cfg.checkpoint is None or cfg.root is None:
         raise ValueError("sigma-viz policy: --checkpoint and --root are required")
@@ -155,15 +155,10 @@ def run_policy_view(cfg: PolicyViewConfig) -> str:
         outputs = policy_frame_outputs(policy, batch)
 
     num_views = len(outputs["views"])
-    names = (
-        list(DEFAULT_VIEW_NAMES)
-        if num_views == len(DEFAULT_VIEW_NAMES)
-        else [f"view_{i}" for i in range(num_views)]
-    )
-    rec = open_recording(f"sigma/policy/{Path(cfg.root).name}", cfg, policy_blueprint(names))
+    rec = open_recording(f"sigma/policy/{Path(cfg.root).name}", cfg, policy_blueprint(outputs["view_names"]))
     try:
         rec.set_time("frame_index", sequence=cfg.frame_index)
-        summary = log_policy_frame(rec, **outputs, view_names=names, point_budget=cfg.point_budget)
+        summary = log_policy_frame(rec, **outputs, point_budget=cfg.point_budget)
     finally:
         close_recording(rec, cfg)
     err = (

@@ -125,3 +125,22 @@ def test_a_saved_checkpoint_acts_with_its_own_heatmap_fusion_or_else_its_presets
     (tmp_path / "config.json").write_text(json.dumps({"type": "sigma", "device": "cpu", "preset": "huge"}))
     with pytest.raises(ValueError, match=r"config\.json: policy\.preset must be one of .* got 'huge'"):
         SigmaConfig.from_pretrained(tmp_path)
+
+
+@pytest.mark.parametrize(
+    ("views", "message"),
+    [
+        (["top", "front"], "policy.virtual_views: .* needs 'left' or 'right'"),
+        (["front", "left", "right"], "policy.virtual_views: .* lacks 'top'"),
+        (["top", "front", "lft"], "policy.virtual_views: unknown view"),
+    ],
+)
+def test_virtual_views_are_checked(views, message):
+    with pytest.raises(ValueError, match=message):
+        SigmaConfig(device="cpu", virtual_views=views)
+    assert SigmaConfig(device="cpu", virtual_views=["top", "right", "back"]).network_config().views == (
+        0,
+        2,
+        4,
+    )
+    assert SigmaConfig(device="cpu").network_config().num_views == 5

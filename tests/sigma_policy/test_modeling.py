@@ -18,6 +18,7 @@ from sigma_policy.heatmap import heatmap_to_cube_point
 from sigma_policy.modeling_sigma import SigmaPolicy
 from sigma_policy.pointcloud import cube_to_world, world_to_cube
 from sigma_policy.test_time import transform_points
+from sigma_policy.views import ALL_VIEWS
 from tests.sigma_policy.tiny_dataset import BOUNDS, write_tiny_keyframe_dataset
 
 FAST = {"preset": "small", "img_size": 32, "patch_size": 8, "attn_dim": 64, "attn_heads": 2}
@@ -775,6 +776,45 @@ def test_tilted_side_views_render_target_and_predict_in_one_geometry(tiny_root, 
     assert action.shape == (1, 9) and torch.isfinite(action).all()
 
 
+def test_three_virtual_views_train_save_reload_and_act_like_those_views_of_five(
+    tiny_root, tmp_path, monkeypatch
+):
+    """``virtual_views`` (RVT-2's three): the policy renders only those views, its heatmap targets are the five-view
+    policy's targets in those views, training backpropagates, and a saved policy reloads with its views and acts
+    as before saving."""
+    import sigma_policy.modeling_sigma as modeling
+
+    captured = {}
+    heatmaps = modeling.gaussian_heatmaps
+
+    def keep_uv(uv, *args, **kwargs):
+        captured["uv"] = uv
+        return heatmaps(uv, *args, **kwargs)
+
+    monkeypatch.setattr(modeling, "gaussian_heatmaps", keep_uv)
+    _, policy, pre, post, ds = build(tiny_root, virtual_views=["left", "top", "front"])
+    assert policy.renderer.views == (0, 1, 3) and policy.network.cfg.num_views == 3
+    batch = pre(training_batch(ds, [0, 1, 3]))
+    torch.manual_seed(0)
+    loss, _ = policy.forward(batch)
+    loss.backward()
+    assert torch.isfinite(loss) and captured["uv"].shape == (3, 3, 2)
+    three = captured["uv"]
+    _, five_policy, _, _, _ = build(tiny_root)
+    torch.manual_seed(0)  # the same augmentation draw
+    five_policy.forward(batch)
+    torch.testing.assert_close(three, captured["uv"][:, [0, 1, 3]])
+    policy.eval()
+    obs = single_observation(tiny_root, 2)
+    before = post(policy.select_action(pre(dict(obs))))
+    assert before.shape == (1, 9) and torch.isfinite(before).all()
+    assert policy.last_prediction.views.shape[1] == 3
+    policy.save_pretrained(tmp_path)
+    loaded = SigmaPolicy.from_pretrained(tmp_path)
+    assert loaded.config.virtual_views == ["left", "top", "front"] and loaded.renderer.views == (0, 1, 3)
+    torch.testing.assert_close(post(loaded.select_action(pre(dict(obs)))), before)
+
+
 def test_inference_reads_no_state_when_nothing_uses_it(tiny_root):
     """Without the proprio token ``observation.state`` is not read at inference (RVT's inputs: the cameras and the
     instruction); with it, it is, and its absence is named."""
@@ -942,8 +982,8 @@ def test_the_heads_read_where_the_policy_acts_whichever_heatmap_fusion(tiny_root
     policy.eval()
     read = []
 
-    def recording(logits, side_tilt_deg=0.0, fusion="sum"):
-        read.append((fusion, predicted_uv(logits, side_tilt_deg, fusion)))
+    def recording(logits, side_tilt_deg=0.0, fusion="sum", views=ALL_VIEWS):
+        read.append((fusion, predicted_uv(logits, side_tilt_deg, fusion, views)))
         return read[-1][1]
 
     monkeypatch.setattr(network_module, "predicted_uv", recording)

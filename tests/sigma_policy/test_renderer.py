@@ -109,6 +109,31 @@ def test_tilted_side_views_match_brute_force_reference(S: int, tilt: float) -> N
     assert not torch.equal(got[:, 1:], reference_render(pts, feats, mask, S, 1.32)[:, 1:])  # the tilt shows
 
 
+@pytest.mark.parametrize("tilt", [0.0, 30.0])
+@pytest.mark.parametrize("views", [(0, 1, 3), (0, 2, 4), (0, 1, 2, 4)])
+def test_fewer_views_are_those_views_of_the_five(views: tuple[int, ...], tilt: float) -> None:
+    """RVT-2's three views (or any set with the top view): each rendered view is the same view of the five-view
+    render, pixel for pixel, except the view-id channel, which spans [-1, 1] over the views rendered; projections
+    agree too."""
+    pts, feats, mask = _random_cloud(B=2, N=1200, seed=len(views) + int(tilt))
+    S = 36
+    five = VirtualViewRenderer(img_size=S, side_tilt_deg=tilt)(pts, feats, mask).clone()
+    renderer = VirtualViewRenderer(img_size=S, side_tilt_deg=tilt, views=views)
+    got = renderer(pts, feats, mask)
+    assert got.shape == (2, len(views), 10, S, S) and renderer.num_views == len(views)
+    keep = [c for c in range(10) if c != 7]
+    torch.testing.assert_close(got[:, :, keep], five[:, list(views)][:, :, keep], rtol=0, atol=0)
+    ids = torch.linspace(-1, 1, len(views))
+    assert torch.equal(got[0, :, 7, 0, 0], ids)
+    torch.testing.assert_close(renderer.project(pts), project_points(pts, S, tilt)[0][:, :, list(views)])
+
+
+@pytest.mark.parametrize("views", [(0, 0, 1, 3), (0, 3, 1), (0, 5), ()])
+def test_bad_view_sets_raise(views: tuple[int, ...]) -> None:
+    with pytest.raises(ValueError, match="views"):
+        VirtualViewRenderer(img_size=8, views=views)
+
+
 @pytest.mark.parametrize("scatter_mode", ["dummy", "spread", "compact"])
 @pytest.mark.parametrize(("S", "r"), [(40, 1.32), (29, 0.6)])
 def test_scatter_modes_match_brute_force_reference(scatter_mode: str, S: int, r: float) -> None:

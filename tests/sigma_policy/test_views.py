@@ -8,7 +8,14 @@ import pytest
 import torch
 
 from sigma_policy.renderer import VirtualViewRenderer
-from sigma_policy.views import VIEW_AXES, project_points, tilted_coordinates, view_axes
+from sigma_policy.views import (
+    VIEW_AXES,
+    VIEW_NAMES,
+    project_points,
+    tilted_coordinates,
+    view_axes,
+    view_indices,
+)
 
 
 def test_no_tilt_is_rvts_table() -> None:
@@ -87,3 +94,28 @@ def test_bad_tilt_raises() -> None:
     with pytest.raises(ValueError, match="side_tilt_deg"):
         project_points(torch.zeros(1, 1, 3), 8, -5.0)
     assert math.isfinite(project_points(torch.zeros(1, 1, 3), 8, 89.0)[0].sum())
+
+
+def test_view_sets_are_ordered_and_must_lift_to_a_point() -> None:
+    """A set of views is ordered as VIEW_NAMES (the top view first), and must see every axis pair."""
+    assert view_indices(list(VIEW_NAMES)) == (0, 1, 2, 3, 4)
+    assert view_indices(["left", "front", "top"]) == (0, 1, 3)
+    assert view_indices(["right", "top", "back"]) == (0, 2, 4)
+    with pytest.raises(ValueError, match=r"unknown view.*'side'"):
+        view_indices(["top", "front", "side"])
+    with pytest.raises(ValueError, match="twice"):
+        view_indices(["top", "front", "left", "front"])
+    with pytest.raises(ValueError, match="lacks 'top'"):
+        view_indices(["front", "back", "left", "right"])
+    with pytest.raises(ValueError, match="needs 'left' or 'right'"):
+        view_indices(["top", "front", "back"])
+    with pytest.raises(ValueError, match="needs 'front' or 'back' and 'left' or 'right'"):
+        view_indices(["top"])
+
+
+@pytest.mark.parametrize("tilt", [0.0, 45.0])
+def test_projections_of_a_view_set_are_those_views_of_the_five(tilt: float) -> None:
+    pts = torch.rand(2, 9, 3) * 2 - 1
+    uv, z = project_points(pts, 40, tilt)
+    uv3, z3 = project_points(pts, 40, tilt, views=(0, 2, 3))
+    assert torch.equal(uv3, uv[:, :, [0, 2, 3]]) and torch.equal(z3, z[:, :, [0, 2, 3]])
