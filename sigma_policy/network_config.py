@@ -102,6 +102,7 @@ class NetworkConfig:
         if self.num_queries < 1:
             raise ValueError(f"num_queries must be >= 1, got {self.num_queries}")
         tilt_slope(self.side_tilt_deg)  # 0 <= angle < 90
+        object.__setattr__(self, "views", tuple(self.views))  # hashable (a list from a caller or a parser)
         if list(self.views) != sorted(set(self.views)) or not set(self.views) <= set(ALL_VIEWS):
             raise ValueError(f"views must be increasing indices into {VIEW_NAMES}, got {self.views}")
         view_indices([VIEW_NAMES[v] for v in self.views])  # the top view and every axis pair

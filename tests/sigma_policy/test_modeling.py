@@ -746,10 +746,9 @@ def test_yaw_scan_crop_sits_at_the_target_in_training_and_at_the_prediction_at_i
     assert seen["head_uv"] is None and action.shape == (1, 9)
 
 
-def test_tilted_side_views_render_target_and_predict_in_one_geometry(tiny_root, monkeypatch):
-    """With ``side_tilt_deg`` the renderer, the heatmap targets and the back-projection all use the tilted views:
-    the side views' targets sit at the tilted projection (rows moved, columns and the top view not), training
-    backpropagates, and inference back-projects to a finite action."""
+def capture_target_uv(monkeypatch) -> dict:
+    """A dict that holds, under "uv", the pixel coordinates ``(B, V, 2)`` of the heatmap targets of the policy's
+    latest training forward pass."""
     import sigma_policy.modeling_sigma as modeling
 
     captured = {}
@@ -760,6 +759,14 @@ def test_tilted_side_views_render_target_and_predict_in_one_geometry(tiny_root, 
         return heatmaps(uv, *args, **kwargs)
 
     monkeypatch.setattr(modeling, "gaussian_heatmaps", keep_uv)
+    return captured
+
+
+def test_tilted_side_views_render_target_and_predict_in_one_geometry(tiny_root, monkeypatch):
+    """With ``side_tilt_deg`` the renderer, the heatmap targets and the back-projection all use the tilted views:
+    the side views' targets sit at the tilted projection (rows moved, columns and the top view not), training
+    backpropagates, and inference back-projects to a finite action."""
+    captured = capture_target_uv(monkeypatch)
     _, policy, pre, post, ds = build(tiny_root, side_tilt_deg=45.0, use_contrastive=False)
     assert policy.renderer.side_tilt_deg == 45.0 and policy.network.cfg.side_tilt_deg == 45.0
     loss, _ = policy.forward(pre(training_batch(ds, [0, 1, 3])))
@@ -782,16 +789,7 @@ def test_three_virtual_views_train_save_reload_and_act_like_those_views_of_five(
     """``virtual_views`` (RVT-2's three): the policy renders only those views, its heatmap targets are the five-view
     policy's targets in those views, training backpropagates, and a saved policy reloads with its views and acts
     as before saving."""
-    import sigma_policy.modeling_sigma as modeling
-
-    captured = {}
-    heatmaps = modeling.gaussian_heatmaps
-
-    def keep_uv(uv, *args, **kwargs):
-        captured["uv"] = uv
-        return heatmaps(uv, *args, **kwargs)
-
-    monkeypatch.setattr(modeling, "gaussian_heatmaps", keep_uv)
+    captured = capture_target_uv(monkeypatch)
     _, policy, pre, post, ds = build(tiny_root, virtual_views=["left", "top", "front"])
     assert policy.renderer.views == (0, 1, 3) and policy.network.cfg.num_views == 3
     batch = pre(training_batch(ds, [0, 1, 3]))
