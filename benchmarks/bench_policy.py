@@ -256,7 +256,7 @@ def markdown(
         name = (
             "Σ-agent (BC + contrastive, current + goal render)" if r["contrastive"] else "BC only (baseline)"
         ) + (", NCHW convolutions" if r["layout"] == "nchw" else "")
-        name += f", views {', '.join(r['views'])}" if r.get("views") else ""
+        name += f", views {', '.join(r['views'])}" if r["views"] else ""
         ms = r["inference_ms_per_action"]
         verdict = f"{ms / goal_ms:.2f}x the budget: {'met' if ms <= goal_ms else 'not met'}"
         mem = f"{r['peak_mem_gb']:.2f} GiB | " if gpu_mem else ""

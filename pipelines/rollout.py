@@ -204,13 +204,12 @@ class RolloutWorker:
     def _open_recording(self, job: Job):
         from pipelines.viz.blueprints import policy_blueprint
         from pipelines.viz.cli import ViewerDelivery, open_recording
-        from sigma_policy.views import VIEW_NAMES
 
         path = self.cfg.output_dir / "rollouts" / f"{job.task}_{job.variation}_seed{job.seed}.rrd"
         rec = open_recording(
             f"sigma-eval/{job.task}/{job.variation}/{job.seed}",
             ViewerDelivery(save=path),
-            policy_blueprint([VIEW_NAMES[v] for v in self.policy.renderer.views]),
+            policy_blueprint(self.policy.renderer.view_names),
         )
         return rec, str(path)
 

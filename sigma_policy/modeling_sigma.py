@@ -10,7 +10,8 @@ Per sample and frame (current frame i, and in training its goal, keyframe i+1, f
    ``augmentation.py``).
 3. Crop to the sample's box (``scene_bounds``, or its task's with ``per_task_bounds``), map to the canonical cube
    [-1, 1]^3 (``pointcloud.py``), render the orthographic virtual views (B, V, 10, img_size, img_size; V = 5, or
-   fewer with ``virtual_views``; ``renderer.py``); training adds the uniform render noise of docs/method.md §4.3 on channels 0-6.
+   fewer with ``virtual_views``; ``renderer.py``); training adds the uniform render noise of docs/method.md §4.3
+   on channels 0-6.
 4. The network (``network.py``) with frozen, cached text-encoder tokens of ``task``.
 
 Losses (docs/method.md §6.1, §7; ``behaviour_cloning.py``): translation = soft-target cross-entropy of each view's

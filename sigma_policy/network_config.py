@@ -8,7 +8,7 @@ import math
 from dataclasses import dataclass
 from typing import Literal
 
-from sigma_policy.views import ALL_VIEWS, VIEW_NAMES, tilt_slope, view_indices
+from sigma_policy.views import ALL_VIEWS, check_views, tilt_slope
 
 __all__ = ["VIEW_CHANNELS", "NetworkConfig"]
 
@@ -102,10 +102,8 @@ class NetworkConfig:
         if self.num_queries < 1:
             raise ValueError(f"num_queries must be >= 1, got {self.num_queries}")
         tilt_slope(self.side_tilt_deg)  # 0 <= angle < 90
-        object.__setattr__(self, "views", tuple(self.views))  # hashable (a list from a caller or a parser)
-        if list(self.views) != sorted(set(self.views)) or not set(self.views) <= set(ALL_VIEWS):
-            raise ValueError(f"views must be increasing indices into {VIEW_NAMES}, got {self.views}")
-        view_indices([VIEW_NAMES[v] for v in self.views])  # the top view and every axis pair
+        # a tuple, hashable (a list from a caller or a parser would not be), with the top view and every axis pair
+        object.__setattr__(self, "views", check_views(self.views))
         if self.local_channels < 0 or (self.local_channels and not self.local_dilations):
             raise ValueError("local_channels must be >= 0, with at least one dilation when > 0")
         if self.local_in_decoder and not self.local_channels:

@@ -1,7 +1,8 @@
 """Pure-PyTorch orthographic virtual-view renderer (replaces RVT-1's PyTorch3D point renderer).
 
-Five fixed orthographic views of the canonical cube ``[-1, 1]^3`` (docs/method.md §4.1), or a subset of them with
-the top view (``views``; RVT-2's three), each ``img_size`` x ``img_size`` pixels; which cube coordinates give each view's columns, rows and depth is the table of
+Five fixed orthographic views of the canonical cube ``[-1, 1]^3`` (docs/method.md §4.1), or a subset of them
+(``views``; RVT-2's three), each ``img_size`` x ``img_size`` pixels; which cube coordinates give each view's
+columns, rows and depth is the table of
 :mod:`sigma_policy.views` (RVT's axis-aligned views, or with ``side_tilt_deg`` side views that look down over a
 container's rim).
 
@@ -23,8 +24,8 @@ Output channels for ``F`` feature channels (``F = 3``, RGB, gives the paper's 10
 ``0-2`` cube xyz of the winning point, ``3 .. 3+F-1`` its features, then depth, then 3 pixel-location channels.
 Depth is the winner's view depth ``z`` (in ``[0, 2]`` for points in the cube) minus the mean of ``z`` over the
 non-empty pixels of that image; empty pixels get depth ``-1`` and zeros in the xyz/feature channels. The
-location channels are the view id ``linspace(-1, 1, V)[view]`` (V rendered views), the row coordinate ``linspace(-1, 1, H)`` and the
-column coordinate ``linspace(-1, 1, W)``.
+location channels are the view id ``linspace(-1, 1, V)[view]`` (V rendered views), the row coordinate
+``linspace(-1, 1, H)`` and the column coordinate ``linspace(-1, 1, W)``.
 
 Implementation (no Python loop over points or pixels). Each view depends on two coordinates for its image
 axes and one for its depth, and the 5 views use only 5 distinct image-axis quantities (``(1 +- x) S/2``,
@@ -64,6 +65,7 @@ from sigma_policy.views import (
     SIDE_VIEWS,
     VIEW_AXES,
     VIEW_NAMES,
+    check_views,
     project_points,
     tilt_slope,
     tilted_coordinates,
@@ -133,9 +135,7 @@ class VirtualViewRenderer(nn.Module):
             raise ValueError(f"scatter_mode must be one of {_SCATTER_MODES}, got {scatter_mode!r}")
         self.scatter_mode = scatter_mode
         self.side_tilt_deg = float(side_tilt_deg)
-        if not views or any(v not in ALL_VIEWS for v in views) or list(views) != sorted(set(views)):
-            raise ValueError(f"views must be increasing indices into {VIEW_NAMES}, got {views}")
-        self.views = tuple(views)
+        self.views = check_views(views, liftable=False)  # any set renders; the policy needs a liftable one
         every = view_axes(self.side_tilt_deg)  # validates the angle
         self._view_axes = tuple(every[v] for v in self.views)
         self._quantities, self._view_quantities = _quantity_tables(self._view_axes)
@@ -161,6 +161,11 @@ class VirtualViewRenderer(nn.Module):
     @property
     def num_views(self) -> int:
         return len(self.views)
+
+    @property
+    def view_names(self) -> list[str]:
+        """The rendered views' names, in their order (``VIEW_NAMES``)."""
+        return [VIEW_NAMES[v] for v in self.views]
 
     def project(self, points_cube: Tensor) -> Tensor:
         """Continuous pixel coordinates ``(B, N, V, 2)`` (u = column, v = row) of cube points ``(B, N, 3)``,

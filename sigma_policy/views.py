@@ -51,6 +51,7 @@ __all__ = [
     "SIDE_VIEWS",
     "VIEW_AXES",
     "VIEW_NAMES",
+    "check_views",
     "project_points",
     "tilted_coordinates",
     "view_axes",
@@ -73,27 +74,36 @@ ALL_VIEWS: tuple[int, ...] = (0, 1, 2, 3, 4)
 _AXIS_PAIRS: tuple[tuple[int, int], ...] = tuple(tuple(sorted((a[0], a[2]))) for a in VIEW_AXES)
 
 
+def check_views(
+    views: tuple[int, ...] | list[int], liftable: bool = True, name: str = "views"
+) -> tuple[int, ...]:
+    """``views`` as a tuple if they are increasing indices into :data:`VIEW_NAMES` and, with ``liftable``, a set
+    the heatmaps lift to one 3D point from: the top view and every axis pair (module docstring, "Fewer views");
+    else a ``ValueError`` that names the problem, prefixed by ``name`` (the option)."""
+    views = tuple(views)
+    if not views or list(views) != sorted(set(views)) or not set(views) <= set(ALL_VIEWS):
+        raise ValueError(f"{name} must be increasing indices into {VIEW_NAMES}, got {views}")
+    if not liftable:
+        return views
+    names = [VIEW_NAMES[v] for v in views]
+    if 0 not in views:
+        raise ValueError(f"{name}: {names} lacks 'top' (the yaw scan and the (x, y) heatmap read it)")
+    unseen = [pair for pair in ((0, 2), (1, 2)) if pair not in {_AXIS_PAIRS[v] for v in views}]
+    if unseen:
+        need = " and ".join({(0, 2): "'front' or 'back'", (1, 2): "'left' or 'right'"}[p] for p in unseen)
+        raise ValueError(f"{name}: {names} needs {need}, or the heatmaps cannot lift to a 3D point")
+    return views
+
+
 def view_indices(names: list[str] | tuple[str, ...]) -> tuple[int, ...]:
     """Indices into :data:`VIEW_NAMES` of the views ``names``, in that table's order (the top view first); a
-    ``ValueError`` naming the problem for an unknown or repeated name, a set without the top view, or one that
-    leaves an axis pair unseen (module docstring, "Fewer views")."""
+    ``ValueError`` naming the problem for an unknown or repeated name, or a set :func:`check_views` refuses."""
     unknown = [n for n in names if n not in VIEW_NAMES]
     if unknown:
         raise ValueError(f"virtual_views: unknown view(s) {unknown}; the views are {list(VIEW_NAMES)}")
     if len(set(names)) != len(names):
         raise ValueError(f"virtual_views: {list(names)} names a view twice")
-    views = tuple(i for i, n in enumerate(VIEW_NAMES) if n in names)
-    if 0 not in views:
-        raise ValueError(
-            f"virtual_views: {list(names)} lacks 'top' (the yaw scan and the (x, y) heatmap read it)"
-        )
-    unseen = [pair for pair in ((0, 2), (1, 2)) if pair not in {_AXIS_PAIRS[v] for v in views}]
-    if unseen:
-        need = " and ".join({(0, 2): "'front' or 'back'", (1, 2): "'left' or 'right'"}[p] for p in unseen)
-        raise ValueError(
-            f"virtual_views: {list(names)} needs {need}, or the heatmaps cannot lift to a 3D point"
-        )
-    return views
+    return check_views(tuple(i for i, n in enumerate(VIEW_NAMES) if n in names), name="virtual_views")
 
 
 def tilt_slope(side_tilt_deg: float) -> float:

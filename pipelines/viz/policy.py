@@ -319,9 +319,9 @@ def prediction_frame(
     """``log_policy_frame``'s keyword arguments for the first sample of a ``SigmaPrediction``: the policy's virtual
     views (V, 10, H, W) and their names, per-view heatmaps (V, H, W), the decoded 9-D world-frame prediction, the
     fused input cloud, rotation-bin / gripper / collision probabilities, and the predicted (and, given
-    ``gt_action``, the true) translation projected into every view (``pred_pixels`` / ``gt_pixels``, (V, 2) as (u, v))."""
+    ``gt_action``, the true) translation projected into every view (``pred_pixels`` / ``gt_pixels``, (V, 2) as
+    (u, v))."""
     from sigma_policy.pointcloud import world_to_cube
-    from sigma_policy.views import VIEW_NAMES
 
     cloud = pred.cloud_points[0]
     finite = torch.isfinite(cloud).all(-1)
@@ -332,7 +332,7 @@ def prediction_frame(
         gt_pixels = policy.renderer.project(gt_cube)[0, 0].cpu().numpy()
     return {
         "views": pred.views[0].float().cpu().numpy(),
-        "view_names": [VIEW_NAMES[v] for v in policy.renderer.views],
+        "view_names": policy.renderer.view_names,
         "heatmaps": pred.heatmaps[0].float().cpu().numpy(),
         "pred_action": pred.action[0].float().cpu().numpy(),
         "gt_action": gt_action,
