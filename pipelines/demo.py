@@ -3,12 +3,13 @@
 Stages (each shows progress; the run ends with a short table and the paths it wrote):
 
 1. **collect** a multi-task keyframe dataset with the scripted experts (``episodes`` per variation: keyframe-only
-   collection renders only the decision points, so 30 per variation take about a minute), and a few dense episodes
+   collection renders only the decision points, so 30 per variation take 2-3 minutes on 2 cores), and a dense episode
    per variation (``dense_episodes``: every control step, for the episode viewer and stock LeRobot policies);
 2. **validate** both against the data contract (``sigma-data validate``);
-3. **train** the ``small`` Σ-agent policy with the stock ``lerobot-train --policy.type=sigma`` (1500 steps, in bf16
-   autocast where the CPU has native bf16: about 13 minutes on 2 cores of an AVX512-BF16 machine, 17 there in
-   float32, 24 in float32 on 2 cores of an AMD EPYC without AVX-512; README.md gives the whole demo's times);
+3. **train** the ``small`` Σ-agent policy with the stock ``lerobot-train --policy.type=sigma``: 1500 steps in bf16
+   autocast where the CPU has native bf16 (about 13 minutes on 2 cores of an AVX512-BF16 machine), 700 in float32
+   elsewhere (about 13 minutes on 2 cores of an AMD EPYC without AVX-512, where 1500 take 24), so that the demo
+   keeps to 20 minutes; fewer steps read Stack's order less well (README.md gives the whole demo's times and scores);
 4. **evaluate** it closed-loop in robosuite (``sigma-eval``), seeds disjoint from the training seeds;
 5. **visualise**: a Rerun recording of a dataset episode and of the policy's virtual views and heatmaps on a
    failed and a successful rollout (``sigma-viz``; open them with ``rerun <file>.rrd``).
@@ -34,6 +35,12 @@ from sigma_data.cameras import DEFAULT_CAMERAS
 os.environ.setdefault("HF_HUB_OFFLINE", "1")
 
 
+# The demo's training steps where the network trains in bf16 autocast (a CPU with native bf16: AVX512-BF16 or AMX),
+# and in float32 elsewhere (DemoConfig.steps).
+BF16_STEPS = 1500
+FLOAT32_STEPS = 700
+
+
 @dataclass
 class DemoConfig:
     """Options of the demo (``make demo ARGS='--quick true'``)."""
@@ -43,14 +50,17 @@ class DemoConfig:
     quick: bool = False
     # Tasks collected and evaluated ("lift", "stack", ...; see sigma_data.suite).
     tasks: list[str] = field(default_factory=lambda: ["lift", "stack"])
-    # Seeds collected per variation for the keyframe (training) dataset, and for the dense dataset.
+    # Seeds collected per variation for the keyframe (training) dataset, and for the dense dataset (the episode viewer's
+    # and stock LeRobot policies' data: every control step rendered, about 15 s of collection per episode).
     episodes: int = 30
-    dense_episodes: int = 2
+    dense_episodes: int = 1
     # Evaluation episodes per variation (held-out seeds), and keyframes a rollout may take.
     eval_episodes: int = 10
     max_keyframes: int = 12
-    # Training steps and batch size of the small policy.
-    steps: int = 1500
+    # Training steps of the small policy (None = ``BF16_STEPS`` where the network trains in bf16, that is with
+    # ``bf16`` on a CPU with native bf16, else ``FLOAT32_STEPS``, which keep the demo to 20 minutes on 2 cores of a
+    # CPU without it; docs/learning.md "The demo in float32: fewer steps") and batch size.
+    steps: int | None = None
     batch_size: int = 8
     # Training seed (the data and evaluation seeds stay fixed): a second seed says how much of a result is the draw.
     seed: int = 0
@@ -67,6 +77,22 @@ class DemoConfig:
             self.steps, self.batch_size = 4, 2
             self.cameras = ["agentview", "robot0_eye_in_hand"]
             self.image_size = 32
+
+    def resolve_steps(self) -> str:
+        """Fill ``steps`` when it is None, from the precision the network will train in; returns why, in words."""
+        if self.steps is not None:
+            return f"{self.steps} training steps (--steps)"
+        from sigma_policy.modeling_sigma import cpu_has_native_bf16
+
+        if self.bf16 and cpu_has_native_bf16():
+            self.steps = BF16_STEPS
+            return f"{self.steps} training steps (bf16 autocast: this CPU has native bf16)"
+        self.steps = FLOAT32_STEPS
+        why = "--bf16 false" if self.bf16 is False else "this CPU has no native bf16"
+        return (
+            f"{self.steps} training steps in float32 ({why}; --steps {BF16_STEPS} trains the bf16 recipe's steps, "
+            "about 25 minutes of float32 training on 2 cores)"
+        )
 
 
 @dataclass
@@ -183,6 +209,7 @@ def run_demo(cfg: DemoConfig) -> dict:
     if cfg.output_dir.exists():
         shutil.rmtree(cfg.output_dir)
     cfg.output_dir.mkdir(parents=True)
+    print(f"demo: {cfg.resolve_steps()}", flush=True)
     times = StageTimes()
     outputs = times.run("1/5 collect (scripted experts -> LeRobot datasets)", collect_stage, cfg)
     times.run("2/5 validate (data contract)", validate_stage, outputs)
@@ -194,6 +221,7 @@ def run_demo(cfg: DemoConfig) -> dict:
         "checkpoint": str(ckpt),
         "eval": str(cfg.output_dir / "eval" / "results.md"),
         "recordings": {k: str(v) for k, v in recordings.items()},
+        "train_steps": cfg.steps,
         "stage_seconds": times.seconds,
         "success": {f"{v['task']}:{v['variation']}": v["success_rate"] for v in summary["variations"]},
     }

@@ -64,7 +64,7 @@ from sigma_policy.views import view_indices
 from sigma_policy.weight_average import WeightAverage
 
 
-def _cpu_has_bf16() -> bool:
+def cpu_has_native_bf16() -> bool:
     """Whether oneDNN runs bf16 natively on this CPU (AVX512-BF16 or AMX); elsewhere bf16 is emulated and slower."""
     return bool(torch.backends.mkldnn.is_available() and torch.ops.mkldnn._is_mkldnn_bf16_supported())
 
@@ -573,7 +573,7 @@ class SigmaPolicy(PreTrainedPolicy):
         autocast = nullcontext()
         if self.config.use_bf16_autocast and device.type == "cuda" and torch.cuda.is_bf16_supported():
             autocast = torch.autocast("cuda", dtype=torch.bfloat16)
-        elif self.config.use_cpu_bf16_autocast and device.type == "cpu" and _cpu_has_bf16():
+        elif self.config.use_cpu_bf16_autocast and device.type == "cpu" and cpu_has_native_bf16():
             autocast = torch.autocast("cpu", dtype=torch.bfloat16)
         network = self.acting_network()
         with autocast:

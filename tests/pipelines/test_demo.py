@@ -9,7 +9,7 @@ from pathlib import Path
 
 from lerobot.datasets.lerobot_dataset import LeRobotDataset
 
-from pipelines.demo import DemoConfig, run_demo
+from pipelines.demo import BF16_STEPS, FLOAT32_STEPS, DemoConfig, run_demo
 from pipelines.viz.cli import PolicyViewConfig, run_policy_view
 from sigma_policy.renderer import VIEW_NAMES
 from tests.pipelines.viz_fixtures import read_rrd
@@ -74,3 +74,25 @@ def test_quick_demo_runs_every_stage(tmp_path):
     info = json.loads((eval_dir / "eval_info.json").read_text())
     assert info["overall"]["n_episodes"] == 1
     assert list((eval_dir / "videos").rglob("*.mp4"))
+
+
+def test_demo_steps_follow_the_training_precision(monkeypatch):
+    """Unset ``steps`` is the bf16 recipe's 1500 on a CPU with native bf16 and 800 in float32 (``--bf16 false`` or a
+    CPU without it), so the demo keeps to about 20 minutes; ``--steps`` wins either way, and ``--quick`` keeps 4."""
+    import sigma_policy.modeling_sigma as modeling
+
+    for native, bf16, want in (
+        (True, True, BF16_STEPS),
+        (False, True, FLOAT32_STEPS),
+        (True, False, FLOAT32_STEPS),
+    ):
+        monkeypatch.setattr(modeling, "cpu_has_native_bf16", lambda native=native: native)
+        cfg = DemoConfig(bf16=bf16)
+        why = cfg.resolve_steps()
+        assert cfg.steps == want and str(want) in why
+        assert ("float32" in why) == (want == FLOAT32_STEPS)
+    cfg = DemoConfig(steps=1200)
+    assert "1200" in cfg.resolve_steps() and cfg.steps == 1200
+    quick = DemoConfig(quick=True)
+    quick.resolve_steps()
+    assert quick.steps == 4

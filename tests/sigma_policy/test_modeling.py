@@ -15,7 +15,7 @@ from lerobot.policies.factory import make_policy, make_pre_post_processors
 
 from sigma_policy.configuration_sigma import SigmaConfig
 from sigma_policy.heatmap import heatmap_to_cube_point
-from sigma_policy.modeling_sigma import SigmaPolicy
+from sigma_policy.modeling_sigma import SigmaPolicy, cpu_has_native_bf16
 from sigma_policy.pointcloud import cube_to_world, world_to_cube
 from sigma_policy.test_time import transform_points
 from sigma_policy.views import ALL_VIEWS
@@ -50,9 +50,7 @@ def single_observation(root: Path, index: int) -> dict:
     return {k: v for k, v in item.items() if k.startswith("observation.") or k == "task"}
 
 
-@pytest.mark.skipif(
-    not torch.ops.mkldnn._is_mkldnn_bf16_supported(), reason="this CPU has no native bf16 (AVX512-BF16/AMX)"
-)
+@pytest.mark.skipif(not cpu_has_native_bf16(), reason="this CPU has no native bf16 (AVX512-BF16/AMX)")
 def test_cpu_bf16_autocast_runs_the_network_in_bf16_and_keeps_the_loss_and_weights_float32(tiny_root):
     """``use_cpu_bf16_autocast``: the network's matmuls run in bf16 (its logits come out bf16), the losses are
     computed in float32 from them and the weights the optimiser updates stay float32."""
