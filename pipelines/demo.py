@@ -81,7 +81,7 @@ class DemoConfig:
     def resolve_steps(self) -> str:
         """Fill ``steps`` when it is None, from the precision the network will train in; returns why, in words."""
         if self.steps is not None:
-            return f"{self.steps} training steps (--steps)"
+            return f"{self.steps} training steps ({'--quick' if self.quick else '--steps'})"
         from sigma_policy.modeling_sigma import cpu_has_native_bf16
 
         if self.bf16 and cpu_has_native_bf16():
