@@ -88,7 +88,7 @@ class DemoConfig:
             self.steps = BF16_STEPS
             return f"{self.steps} training steps (bf16 autocast: this CPU has native bf16)"
         self.steps = FLOAT32_STEPS
-        why = "--bf16 false" if self.bf16 is False else "this CPU has no native bf16"
+        why = "this CPU has no native bf16" if self.bf16 else "--bf16 false"
         return (
             f"{self.steps} training steps in float32 ({why}; --steps {BF16_STEPS} trains the bf16 recipe's steps, "
             "about 25 minutes of float32 training on 2 cores)"

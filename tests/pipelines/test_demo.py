@@ -77,8 +77,9 @@ def test_quick_demo_runs_every_stage(tmp_path):
 
 
 def test_demo_steps_follow_the_training_precision(monkeypatch):
-    """Unset ``steps`` is the bf16 recipe's 1500 on a CPU with native bf16 and 800 in float32 (``--bf16 false`` or a
-    CPU without it), so the demo keeps to about 20 minutes; ``--steps`` wins either way, and ``--quick`` keeps 4."""
+    """Unset ``steps`` is the bf16 recipe's ``BF16_STEPS`` on a CPU with native bf16 and ``FLOAT32_STEPS`` in float32
+    (``--bf16 false`` or a CPU without it), so the demo keeps to about 20 minutes; ``--steps`` wins either way, and
+    ``--quick`` keeps 4."""
     import sigma_policy.modeling_sigma as modeling
 
     for native, bf16, want in (
