@@ -30,7 +30,10 @@ into its own run directory (``runs/seed<S>_decay<D>_lr<LR>``, then ``_batch<B>``
         --output_dir outputs/bench_suite_gpu --publish false          # score here a run trained on a GPU machine
 
 ``--steps`` and ``--batch_size`` default to the budget the preset was measured at (``PRESET_BUDGETS``: 7500 steps
-at batch 8, ``gpu`` 3000 at batch 64).
+at batch 8, ``gpu`` 3000 at batch 64). On a CPU without native bf16 the network trains in float32, where a step
+costs about twice as much, so there the CPU presets default to 30 demonstrations per variation and 4500 steps
+(``FLOAT32_BUDGET``), which keep one training seed's run, collection to table, within 2 hours on 2 cores
+(docs/learning.md "The suite in float32"); the run's first line says which budget it chose.
 
 The defaults are the best five-task recipe for the Σ-agent measured on 2 CPU cores (docs/learning.md "50
 demonstrations per variation at 7500 steps, a third draw" and, for the fourth draw, "Contrastive vs BC-only at the
@@ -70,6 +73,11 @@ SUITE_ARGS = ["--policy.use_cpu_bf16_autocast=true"]
 # steps at batch 8 (docs/learning.md), `gpu` 3000 at batch 64, the length of its own decay (docs/gpu.md).
 PRESET_BUDGETS: dict[str, tuple[int, int]] = {"gpu": (3000, 64)}
 DEFAULT_BUDGET = (7500, 8)
+DEFAULT_EPISODES = 50
+# On a CPU without native bf16 the step runs in float32 and costs about twice as much, so the CPU presets default to
+# fewer demonstrations per variation and steps: the budget that keeps one training seed's whole run (collection to
+# table) within 2 hours on 2 cores (docs/learning.md "The suite in float32").
+FLOAT32_BUDGET = (30, 4500)  # (episodes, steps)
 STAGES = ("collect", "train", "evaluate")
 
 
@@ -79,16 +87,17 @@ class SuiteBenchConfig:
 
     output_dir: Path = Path("outputs/bench_suite")
     tasks: list[str] = field(default_factory=lambda: ["lift", "stack", "pick_place", "nut_assembly", "door"])
-    # Training demonstrations per variation (seeds from 0) and held-out ones (seeds from 50000).
-    episodes: int = 50
+    # Training demonstrations per variation (seeds from 0) and held-out ones (seeds from 50000); None: 50, or 30 where
+    # the CPU trains in float32 (FLOAT32_BUDGET).
+    episodes: int | None = None
     heldout_episodes: int = 5
     # Radius (m) of the random horizontal offset of the experts' approach waypoints in the training demonstrations
     # (`sigma-data collect --pregrasp_jitter_m`, DART-style data; docs/learning.md); 0: the experts' own.
     pregrasp_jitter_m: float = 0.0
     cameras: list[str] = field(default_factory=lambda: list(DEFAULT_CAMERAS))
     image_size: int = 64
-    # Training budget; None: the preset's (PRESET_BUDGETS: 7500 × batch 8, `gpu` 3000 × 64). Checkpoints saved (and
-    # diagnosed) this many times per run.
+    # Training budget; None: the preset's (PRESET_BUDGETS: 7500 × batch 8, `gpu` 3000 × 64; the CPU presets 4500
+    # steps where the CPU trains in float32, FLOAT32_BUDGET). Checkpoints saved (and diagnosed) this many times per run.
     steps: int | None = None
     batch_size: int | None = None
     checkpoints: int = 4
@@ -124,8 +133,35 @@ class SuiteBenchConfig:
         if self.ensemble and len(set(self.seeds)) < 2:
             raise ValueError(f"--ensemble needs two training seeds or more, got --seeds {self.seeds}")
         steps, batch_size = PRESET_BUDGETS.get(self.preset, DEFAULT_BUDGET)
+        episodes = DEFAULT_EPISODES
+        self._float32_budget = self.uses_float32_budget()
+        if self._float32_budget:
+            episodes, steps = FLOAT32_BUDGET
+        self.episodes = self.episodes or episodes
         self.steps = self.steps or steps
         self.batch_size = self.batch_size or batch_size
+
+    def uses_float32_budget(self) -> bool:
+        """Whether the defaults are ``FLOAT32_BUDGET``: a CPU preset trained on a CPU without native bf16 (bf16
+        autocast is then off), with neither ``--episodes`` nor ``--steps`` given: either one given keeps the other at
+        the bf16 recipe's value, so a command that names the steps of a run collected elsewhere reads its data."""
+        given = self.episodes is not None or self.steps is not None
+        if given or self.device != "cpu" or self.preset in PRESET_BUDGETS:
+            return False
+        from sigma_policy.modeling_sigma import cpu_has_native_bf16
+
+        return not cpu_has_native_bf16()
+
+    def budget_line(self) -> str:
+        """The demonstrations and steps this run uses, and why, in words (printed at the start)."""
+        line = f"{self.episodes} demonstrations per variation, {self.steps} steps × batch {self.batch_size}"
+        if self._float32_budget:
+            line += (
+                f" (this CPU has no native bf16, so the network trains in float32: the defaults are then "
+                f"--episodes {FLOAT32_BUDGET[0]} --steps {FLOAT32_BUDGET[1]}, which keep one seed within 2 hours on 2 "
+                f"cores; --episodes {DEFAULT_EPISODES} --steps {DEFAULT_BUDGET[0]} is the recipe measured in bf16)"
+            )
+        return line
 
     @property
     def decay_steps(self) -> int:
@@ -377,6 +413,7 @@ def main(argv: list[str] | None = None) -> int:
         raise ValueError("--seeds must name at least one training seed")
     import sigma_data  # noqa: F401  (MUJOCO_GL before robosuite)
 
+    print(f"bench_suite: {cfg.budget_line()}", flush=True)
     train_root, held_root = collect_data(cfg)
     if cfg.stop_after != "evaluate":
         return stop_early(cfg, train_root, held_root)
