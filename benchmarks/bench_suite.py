@@ -134,17 +134,18 @@ class SuiteBenchConfig:
             raise ValueError(f"--ensemble needs two training seeds or more, got --seeds {self.seeds}")
         steps, batch_size = PRESET_BUDGETS.get(self.preset, DEFAULT_BUDGET)
         episodes = DEFAULT_EPISODES
-        self._float32_budget = self.uses_float32_budget()
+        self._float32_budget = self._defaults_to_float32_budget()
         if self._float32_budget:
             episodes, steps = FLOAT32_BUDGET
         self.episodes = self.episodes or episodes
         self.steps = self.steps or steps
         self.batch_size = self.batch_size or batch_size
 
-    def uses_float32_budget(self) -> bool:
+    def _defaults_to_float32_budget(self) -> bool:
         """Whether the defaults are ``FLOAT32_BUDGET``: a CPU preset trained on a CPU without native bf16 (bf16
         autocast is then off), with neither ``--episodes`` nor ``--steps`` given: either one given keeps the other at
-        the bf16 recipe's value, so a command that names the steps of a run collected elsewhere reads its data."""
+        the bf16 recipe's value, so a command that names the steps of a run collected elsewhere reads its data. Only
+        meaningful in ``__post_init__``, before the defaults fill those fields (``_float32_budget`` keeps the answer)."""
         given = self.episodes is not None or self.steps is not None
         if given or self.device != "cpu" or self.preset in PRESET_BUDGETS:
             return False
