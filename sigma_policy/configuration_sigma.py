@@ -221,6 +221,11 @@ class SigmaConfig(PreTrainedConfig):
     # Instruction FiLM on the image tokens before fusion (network.LanguageFiLM; None = from preset: paper False,
     # small True).
     lang_film: bool | None = None
+    # Instruction FiLM on the translation decoder's full-resolution inputs (network_config.NetworkConfig).
+    decoder_lang_film: bool = False
+    # Zero the text encoder's states at padding positions before the network reads them (text_encoder.TextFeatures):
+    # fusion's language tokens and lang_film's ordered code then hold the instruction's words only.
+    lang_zero_padding: bool = False
 
     # ---- paper-vs-code choices (module docstring)
     num_queries: int = 1

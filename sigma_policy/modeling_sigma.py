@@ -539,13 +539,22 @@ class SigmaPolicy(PreTrainedPolicy):
             return self.renderer(cube, colors, mask)
 
     def _language(self, tasks: list[str]) -> tuple[Tensor, Tensor]:
-        """(B, L, D_tok) tokens and (B, D_sent) sentence features, cached on the policy device per instruction."""
+        """(B, L, D_tok) tokens and (B, D_sent) sentence features, cached on the policy device per instruction;
+        with ``lang_zero_padding`` the padding positions' token states are zeros."""
         missing = [s for s in dict.fromkeys(tasks) if s not in self._lang_cache]
         if missing:
             feats = self.text_encoder.encode(missing)
+            tokens = feats.tokens.detach().float()
+            if self.config.lang_zero_padding:
+                if feats.mask is None:
+                    raise ValueError(
+                        "policy.lang_zero_padding needs the text encoder's padding mask, and this feature table "
+                        "records none: write it again with sigma-encode"
+                    )
+                tokens = tokens * feats.mask.to(tokens)[..., None]
             for i, s in enumerate(missing):
                 self._lang_cache[s] = (
-                    feats.tokens[i].detach().float().to(self._device),
+                    tokens[i].to(self._device),
                     feats.sentence[i].detach().float().to(self._device),
                 )
         tokens = torch.stack([self._lang_cache[s][0] for s in tasks])
