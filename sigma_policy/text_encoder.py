@@ -221,9 +221,10 @@ class MiniLMTextEncoder(TextEncoder):
     def _encode_uncached(self, instructions: list[str]) -> TextFeatures:
         batch = self._tokenize(instructions)
         hidden = self.model(**batch).last_hidden_state  # (B, L, 384)
-        m = batch["attention_mask"].unsqueeze(-1).to(hidden.dtype)
+        mask = batch["attention_mask"].to(hidden.dtype)  # (B, L)
+        m = mask.unsqueeze(-1)
         mean = (hidden * m).sum(1) / m.sum(1).clamp_min(1e-9)
-        return TextFeatures(hidden, nn.functional.normalize(mean, dim=-1), batch["attention_mask"].float())
+        return TextFeatures(hidden, nn.functional.normalize(mean, dim=-1), mask)
 
 
 def save_text_features(encoder: TextEncoder, instructions: list[str], path: str | Path) -> Path:
