@@ -59,7 +59,7 @@ from sigma_policy.test_time import (
     transform_points,
     yaw_about_box_centre,
 )
-from sigma_policy.text_encoder import make_text_encoder
+from sigma_policy.text_encoder import TextFeatures, make_text_encoder, task_contrast
 from sigma_policy.views import view_indices
 from sigma_policy.weight_average import WeightAverage
 
@@ -111,6 +111,11 @@ class SigmaPolicy(PreTrainedPolicy):
                 "mask_same_task: no instruction -> task map (policy.instruction_tasks, or a dataset whose "
                 "meta/sigma.json records each episode's task); only same-instruction negatives are masked"
             )
+        if dataset_meta is not None and config.lang_task_contrast and not config.instruction_tasks:
+            logging.getLogger(__name__).warning(
+                "lang_task_contrast: no instruction -> task map (policy.instruction_tasks, or a dataset whose "
+                "meta/sigma.json records each episode's task); every instruction is read as it is"
+            )
         if dataset_meta is not None and config.instruction_negative_weight and not config.instruction_tasks:
             raise ValueError(
                 "instruction_negative_weight: no instruction -> task map (policy.instruction_tasks, or a dataset "
@@ -126,6 +131,8 @@ class SigmaPolicy(PreTrainedPolicy):
         # Frozen and cached per instruction; kept outside the module tree so it is neither saved nor trained.
         self.__dict__["text_encoder"] = make_text_encoder(config.text_encoder, config.text_encoder_path)
         self._lang_cache: dict[str, tuple[Tensor, Tensor]] = {}
+        # lang_task_contrast's task mean per training instruction and its gain, computed on first use
+        self._task_contrast: tuple[dict[str, Tensor], Tensor] | None = None
         self._build_network()
         self.renderer = VirtualViewRenderer(
             img_size=config.img_size,
@@ -540,18 +547,21 @@ class SigmaPolicy(PreTrainedPolicy):
 
     def _language(self, tasks: list[str]) -> tuple[Tensor, Tensor]:
         """(B, L, D_tok) tokens and (B, D_sent) sentence features, cached on the policy device per instruction;
-        with ``lang_zero_padding`` the padding positions' token states are zeros."""
+        with ``lang_zero_padding`` the padding positions' token states are zeros, with ``lang_task_contrast`` a
+        training instruction's deviation from its task's mean is amplified (:meth:`_task_means`)."""
         missing = [s for s in dict.fromkeys(tasks) if s not in self._lang_cache]
         if missing:
             feats = self.text_encoder.encode(missing)
-            tokens = feats.tokens.detach().float()
-            if self.config.lang_zero_padding:
-                if feats.mask is None:
-                    raise ValueError(
-                        "policy.lang_zero_padding needs the text encoder's padding mask, and this feature table "
-                        "records none: write it again with sigma-encode"
-                    )
-                tokens = tokens * feats.mask.to(tokens)[..., None]
+            tokens = self._token_states(feats)
+            if self.config.lang_task_contrast:
+                means, gain = self._task_means()
+                # an instruction outside the training set is read as it is
+                tokens = torch.stack(
+                    [
+                        means[s] + gain * (t - means[s]) if s in means else t
+                        for s, t in zip(missing, tokens, strict=True)
+                    ]
+                )
             for i, s in enumerate(missing):
                 self._lang_cache[s] = (
                     tokens[i].to(self._device),
@@ -560,6 +570,32 @@ class SigmaPolicy(PreTrainedPolicy):
         tokens = torch.stack([self._lang_cache[s][0] for s in tasks])
         sentence = torch.stack([self._lang_cache[s][1] for s in tasks])
         return tokens, sentence
+
+    def _task_means(self) -> tuple[dict[str, Tensor], Tensor]:
+        """Each training instruction's task mean of token states, and the gain (text_encoder.task_contrast)."""
+        if self._task_contrast is None:
+            instructions = sorted(self.config.instruction_tasks)
+            means, gain = {}, torch.ones(())  # no task map: every instruction is read as it is
+            if instructions:
+                states, gain = task_contrast(
+                    self._token_states(self.text_encoder.encode(instructions)),
+                    [self.config.instruction_tasks[s] for s in instructions],
+                )
+                means = dict(zip(instructions, states, strict=True))
+            self._task_contrast = means, gain
+        return self._task_contrast
+
+    def _token_states(self, feats: TextFeatures) -> Tensor:
+        """The encoder's (N, L, D_tok) token states as float32, the padding zeroed with ``lang_zero_padding``."""
+        tokens = feats.tokens.detach().float()
+        if self.config.lang_zero_padding:
+            if feats.mask is None:
+                raise ValueError(
+                    "policy.lang_zero_padding needs the text encoder's padding mask, and this feature table "
+                    "records none: write it again with sigma-encode"
+                )
+            tokens = tokens * feats.mask.to(tokens)[..., None]
+        return tokens
 
     def _proprio(self, batch: dict[str, Any], bounds: Tensor, transforms: Tensor | None) -> Tensor | None:
         """The proprio token's input (sigma_policy/observation.py, ``proprio_input``)."""

@@ -70,6 +70,32 @@ class TextFeatures:
     mask: Tensor | None = None
 
 
+def task_contrast(tokens: Tensor, tasks: list[str]) -> tuple[Tensor, Tensor]:
+    """``lang_task_contrast`` from a set of instructions' (N, L, D) token states and each one's task: per instruction
+    the mean (N, L, D) of its task's instructions, and the gain ``g`` that gives their deviations from it the set's
+    root-mean-square norm. The network then reads ``mean + g * (tokens - mean)``.
+
+    The instructions of one task share nearly all of their states: MiniLM's ordered codes of Stack's two orders are
+    0.985 apart (cosine), so the words that choose the object or the order are a small part of what the network
+    reads, and the 700-step demo never learns them (docs/learning.md "Padding states and Stack's order"). Amplified,
+    the two orders are about orthogonal; an instruction alone in its task is its own mean and is left as it is, and
+    where no task has two instructions that differ the gain is 1.
+    """
+    if tokens.ndim != 3 or tokens.shape[0] != len(tasks):
+        raise ValueError(
+            f"task_contrast needs (N, L, D) token states for {len(tasks)} instructions, got {tuple(tokens.shape)}"
+        )
+    means = torch.empty_like(tokens)
+    for task in set(tasks):
+        rows = [i for i, t in enumerate(tasks) if t == task]
+        means[rows] = tokens[rows].mean(dim=0)
+    deviation = (tokens - means).flatten(1).pow(2).sum(dim=1)
+    shared = [i for i, t in enumerate(tasks) if tasks.count(t) > 1]
+    if not shared or not deviation[shared].mean() > 0:  # no task has two instructions: nothing to amplify
+        return means, torch.ones((), dtype=tokens.dtype)
+    return means, (tokens.flatten(1).pow(2).sum(dim=1).mean() / deviation[shared].mean()).sqrt()
+
+
 class TextEncoder(nn.Module):
     """Frozen encoder with a per-instruction cache; subclasses implement :meth:`_encode_uncached`."""
 

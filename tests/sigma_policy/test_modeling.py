@@ -135,6 +135,27 @@ def test_zero_padding_keeps_the_instructions_tokens_and_zeros_the_padding_states
     torch.testing.assert_close(sentence[0], raw_sentence[0])
 
 
+def test_task_contrast_reads_each_training_instruction_amplified_and_others_as_they_are(tiny_root):
+    """``lang_task_contrast``: the two instructions of one task are read as their mean plus the gain times their
+    deviation (sigma_policy/text_encoder.task_contrast); an instruction outside ``instruction_tasks`` is untouched."""
+    pair = ["stack the red cube on the green cube", "stack the green cube on the red cube"]
+    tasks = {pair[0]: "stack", pair[1]: "stack", "lift the cube": "lift"}
+    _, policy, *_ = build(tiny_root, lang_task_contrast=True, instruction_tasks=tasks)
+    _, plain, *_ = build(tiny_root)
+    read, sentence = policy._language([*pair, "lift the cube", "open the door"])
+    raw, raw_sentence = plain._language([*pair, "lift the cube", "open the door"])
+    mean = raw[:2].mean(0)
+    gain = (read[0] - mean).norm() / (raw[0] - mean).norm()
+    assert gain > 5
+    torch.testing.assert_close(read[:2], mean + gain * (raw[:2] - mean))
+    torch.testing.assert_close(
+        read[2:], raw[2:]
+    )  # lift is alone in its task; the door is not a training instruction
+    torch.testing.assert_close(sentence, raw_sentence)
+    _, unmapped, *_ = build(tiny_root, lang_task_contrast=True, instruction_tasks={})
+    torch.testing.assert_close(unmapped._language(pair)[0], raw[:2])  # no task map: nothing to amplify
+
+
 def test_unbatched_single_observation_inference(tiny_root):
     _, policy, pre, post, _ = build(tiny_root)
     policy.eval()

@@ -19,6 +19,7 @@ from sigma_policy.text_encoder import (
     make_text_encoder,
     minilm_model_dir,
     save_text_features,
+    task_contrast,
 )
 
 
@@ -239,3 +240,36 @@ def test_a_table_written_before_masks_were_recorded_still_reads(clip, tmp_path: 
     )
     with pytest.raises(ValueError, match=r"bad_mask\.safetensors: mask \(1, 5\) but tokens"):
         TextFeatureTable(bad)
+
+
+def test_task_contrast_amplifies_what_tells_a_tasks_instructions_apart() -> None:
+    """Each instruction's deviation from its task's mean is scaled by the gain; one alone in its task is its own
+    mean (unchanged), and the gain gives the deviations the states' root-mean-square norm."""
+    g = torch.Generator().manual_seed(0)
+    shared = torch.randn(1, 6, 4, generator=g)
+    stack = shared + 0.1 * torch.randn(2, 6, 4, generator=g)  # two orders: nearly the same states
+    lift = torch.randn(1, 6, 4, generator=g)
+    tokens = torch.cat([stack, lift])
+    means, gain = task_contrast(tokens, ["stack", "stack", "lift"])
+    torch.testing.assert_close(means[0], stack.mean(0))
+    torch.testing.assert_close(means[1], stack.mean(0))
+    torch.testing.assert_close(means[2], lift[0])
+    deviation = (stack - stack.mean(0)).flatten(1).pow(2).sum(1).mean()
+    assert gain.item() == pytest.approx((tokens.flatten(1).pow(2).sum(1).mean() / deviation).sqrt().item())
+    assert gain > 5
+    read = means + gain * (tokens - means)
+    before = torch.nn.functional.cosine_similarity(stack[0].flatten(), stack[1].flatten(), dim=0)
+    after = torch.nn.functional.cosine_similarity(read[0].flatten(), read[1].flatten(), dim=0)
+    assert before > 0.95 and after < before - 0.5
+    torch.testing.assert_close(read[2], lift[0])
+
+
+def test_task_contrast_without_two_instructions_of_a_task_changes_nothing() -> None:
+    tokens = torch.randn(2, 3, 4)
+    for same_task in (tokens, tokens[:1].expand(2, 3, 4)):
+        tasks = ["lift", "stack"] if same_task is tokens else ["stack", "stack"]
+        means, gain = task_contrast(same_task, tasks)
+        assert gain.item() == 1.0
+        torch.testing.assert_close(means + gain * (same_task - means), same_task)
+    with pytest.raises(ValueError, match="3 instructions"):
+        task_contrast(tokens, ["a", "b", "c"])
