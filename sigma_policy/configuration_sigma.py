@@ -81,7 +81,6 @@ from sigma_policy.compat import drop_retired
 from sigma_policy.heatmap import check_heatmap_fusion
 from sigma_policy.instruction_contrast import check_contrast_weight
 from sigma_policy.lamb import LambConfig
-from sigma_policy.lr_schedule import HoldCosineSchedulerConfig, check_hold_fraction
 from sigma_policy.network_config import NetworkConfig
 from sigma_policy.test_time import check_yaw_angles
 from sigma_policy.views import VIEW_NAMES, view_indices
@@ -360,10 +359,6 @@ class SigmaConfig(PreTrainedConfig):
     optimizer_exempt_small: bool | None = None
     scheduler_warmup_steps: int | None = None
     scheduler_decay_steps: int | None = None
-    # Keep the rate at its peak until this fraction of the decay span, then the same cosine over the rest (0 = LeRobot's
-    # cosine; sigma_policy/lr_schedule.py). A short run sums more learning rate: 700 steps at 0.8 about 630 peak-steps
-    # against 350 (docs/learning.md "A held peak for short runs").
-    scheduler_hold_fraction: float = 0.0
     # A moving average of the weights, updated after every optimiser step: w_avg <- d w_avg + (1 - d) w, with
     # d = ema_decay (0 = off; 0.998 averages about the last 500 steps). Outside training the policy acts with the
     # average unless act_with_ema is false (docs/method.md §10.1, sigma_policy/weight_average.py).
@@ -433,7 +428,6 @@ class SigmaConfig(PreTrainedConfig):
                 f"policy.instruction_negative_sigma_px must be > 0, got {self.instruction_negative_sigma_px}"
             )
         self.ema_decay = check_ema_decay(self.ema_decay)
-        self.scheduler_hold_fraction = check_hold_fraction(self.scheduler_hold_fraction)
         if not self.tta_radius_m > 0.0:
             raise ValueError(f"policy.tta_radius_m must be > 0, got {self.tta_radius_m}")
         self.network_config()  # validates the architecture numbers early
@@ -488,16 +482,12 @@ class SigmaConfig(PreTrainedConfig):
         )
 
     def get_scheduler_preset(self) -> CosineDecayWithWarmupSchedulerConfig:
-        """LAMB's schedule: LeRobot's warm-up + cosine to lr / 100, with the peak held when ``scheduler_hold_fraction``."""
-        spans = {
-            "num_warmup_steps": self.scheduler_warmup_steps,
-            "num_decay_steps": self.scheduler_decay_steps,
-            "peak_lr": self.optimizer_lr,
-            "decay_lr": self.optimizer_lr / 100,
-        }
-        if self.scheduler_hold_fraction > 0:
-            return HoldCosineSchedulerConfig(**spans, hold_fraction=self.scheduler_hold_fraction)
-        return CosineDecayWithWarmupSchedulerConfig(**spans)
+        return CosineDecayWithWarmupSchedulerConfig(
+            num_warmup_steps=self.scheduler_warmup_steps,
+            num_decay_steps=self.scheduler_decay_steps,
+            peak_lr=self.optimizer_lr,
+            decay_lr=self.optimizer_lr / 100,
+        )
 
     def validate_features(self) -> None:
         """Check that every used camera has RGB, depth, intrinsics and extrinsics, and that the action is 9-D."""

@@ -92,39 +92,3 @@ def test_checkpoint_loads_for_inference_with_its_processors(run_dir):
     obs = {k: v for k, v in item.items() if k.startswith("observation.") or k == "task"}
     action = post(policy.select_action(pre(obs)))
     assert action.shape == (1, 9) and torch.isfinite(action).all()
-
-
-@pytest.mark.slow
-def test_held_peak_schedule_trains_and_resumes(run_dir, tmp_path):
-    """``--policy.scheduler_hold_fraction``: the run records sigma's own scheduler type, holds the peak, and
-    ``--resume`` reads the type back (the plugin registers it before LeRobot parses the saved config)."""
-    root, _ = run_dir
-    out = tmp_path / "held"
-    args = [f"--dataset.root={root}", "--dataset.repo_id=local/tiny", *POLICY_FLAGS, "--batch_size=2"]
-    args += [
-        "--num_workers=0",
-        "--wandb.enable=false",
-        f"--output_dir={out}",
-        "--log_freq=1",
-        "--save_freq=4",
-    ]
-    args += ["--policy.scheduler_hold_fraction=0.75", "--policy.scheduler_warmup_steps=0"]
-    proc = lerobot_train([*args, "--policy.scheduler_decay_steps=8", "--steps=8"])
-    assert proc.returncode == 0, proc.stderr[-4000:]
-    cfg_path = out / "checkpoints" / "last" / "pretrained_model" / "train_config.json"
-    scheduler = json.loads(cfg_path.read_text())["scheduler"]
-    assert scheduler["type"] == "sigma_hold_cosine" and scheduler["hold_fraction"] == 0.75
-    state = json.loads(
-        (out / "checkpoints" / "000004" / "training_state" / "scheduler_state.json").read_text()
-    )
-    assert state["_last_lr"][0] == pytest.approx(
-        1e-2
-    )  # step 4 of 8: held (LeRobot's cosine is at half the peak)
-    proc = lerobot_train(["--resume=true", f"--config_path={cfg_path}", "--steps=10", "--save_freq=2"])
-    assert proc.returncode == 0, proc.stderr[-4000:]
-    state = json.loads(
-        (out / "checkpoints" / "000010" / "training_state" / "scheduler_state.json").read_text()
-    )
-    assert state["last_epoch"] == 10 and state["_last_lr"][0] == pytest.approx(
-        1e-4
-    )  # past the decay: the floor
