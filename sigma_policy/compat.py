@@ -20,6 +20,10 @@ position and orientation, the proprio input of the heads, ``proprio_film``) has 
 config resolves the field from today's preset; loading the file into a network with that module would leave the
 module randomly initialised (LeRobot loads non-strictly). :func:`match_saved_modules` turns such fields off, with a
 warning, from the tensors the file holds, and ``SigmaPolicy`` rebuilds its network to match before loading.
+
+**Added options without weights.** An option that changes what the network reads but adds no tensor
+(``lang_task_contrast``) cannot be told from the weights; a config saved before it existed does not name it, and
+:func:`fill_added_off` reads it as off (the checkpoint was trained without it), not as today's preset.
 """
 
 from __future__ import annotations
@@ -31,7 +35,16 @@ from typing import TYPE_CHECKING, Any
 if TYPE_CHECKING:
     from sigma_policy.configuration_sigma import SigmaConfig
 
-__all__ = ["LAST_COMMIT", "RETIRED", "Retired", "RetiredOptionError", "drop_retired", "match_saved_modules"]
+__all__ = [
+    "ADDED_OFF",
+    "LAST_COMMIT",
+    "RETIRED",
+    "Retired",
+    "RetiredOptionError",
+    "drop_retired",
+    "fill_added_off",
+    "match_saved_modules",
+]
 
 # The last commit of sigma whose code still has every option of RETIRED (git checkout it to rerun their commands).
 LAST_COMMIT = "6ce2291"
@@ -84,6 +97,15 @@ def drop_retired(values: dict[str, Any], source: str) -> dict[str, Any]:
             f'"{option.section}"): this version cannot build that policy; sigma at commit {LAST_COMMIT} can'
         )
     return kept
+
+
+# Options a preset turns on that add no weights, each at its "off" value (module docstring, "Added options").
+ADDED_OFF: dict[str, Any] = {"lang_task_contrast": False}
+
+
+def fill_added_off(values: dict[str, Any]) -> dict[str, Any]:
+    """``values`` (a saved sigma policy config) with each option of :data:`ADDED_OFF` it does not name set off."""
+    return {**ADDED_OFF, **values}
 
 
 def _same(value: Any, off: Any) -> bool:

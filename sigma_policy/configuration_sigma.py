@@ -7,10 +7,13 @@ docs/method.md §12. Every architecture / schedule field left unset (``None``) i
 ``paper`` is the paper's network and schedule (docs/method.md §5, §10). ``small`` is the network for 2 CPU cores
 and minutes: 64² views of 8 × 8 tokens, 128-d attention in 4 layers, the proprio token (and its FiLM),
 full-resolution local features for the heads, LeakyReLU heads, lr 1e-2 with biases, norms and query tokens exempt
-from LAMB's trust ratio, yaw augmentation only, and the views' heatmaps lifted to the 3D point by their product.
+from LAMB's trust ratio, yaw augmentation only, the views' heatmaps lifted to the 3D point by their product, and
+each task's instructions contrasted (``lang_task_contrast``: the float32 demo's 700 steps read Stack's order with it,
+64/100 and 61/100 against 42/100 and 38/100; docs/learning.md "Stack's order in 700 steps").
 
 ``suite`` is ``small`` for several tasks at once: ``per_task_bounds=True`` (each task rendered in its own box),
-``yaw_scan_px=24`` (the rotation-equivariant yaw scan), lr 3e-3 and a 7500-step decay. It is the suite benchmark's
+``yaw_scan_px=24`` (the rotation-equivariant yaw scan), lr 3e-3 and a 7500-step decay, without the instruction
+contrast (not measured there). It is the suite benchmark's
 recipe (``benchmarks/bench_suite.py``; RESULTS.md "The suite on 2 CPU cores"): on four tasks ``small``'s lr 1e-2
 underfit with its 2000-step decay and diverged with a longer one, and the scan lifted NutAssembly from 2/80 to 15/80.
 On PickPlace alone (100 demonstrations per variation, 6000 steps) it scored 28/80 against ``small``'s 20/80, and
@@ -77,7 +80,7 @@ from sigma_data.contract import (  # the data contract: the only sigma_data modu
     recorded_instruction_tasks,
     rgb_key,
 )
-from sigma_policy.compat import drop_retired
+from sigma_policy.compat import drop_retired, fill_added_off
 from sigma_policy.heatmap import check_heatmap_fusion
 from sigma_policy.instruction_contrast import check_contrast_weight
 from sigma_policy.lamb import LambConfig
@@ -108,6 +111,7 @@ PRESETS: dict[str, dict[str, Any]] = {
         "local_channels": 0,
         "head_activation": "relu",
         "lang_film": False,
+        "lang_task_contrast": False,
         "heatmap_refine_px": 0,
         "aug_translation_range": 0.125,
         "aug_yaw_range_deg": 45.0,
@@ -141,6 +145,7 @@ PRESETS: dict[str, dict[str, Any]] = {
         "local_channels": 16,
         "head_activation": "leaky_relu",
         "lang_film": True,
+        "lang_task_contrast": True,
         "heatmap_refine_px": 2,
         "aug_translation_range": 0.0,
         "aug_yaw_range_deg": 45.0,
@@ -162,6 +167,8 @@ PRESETS["suite"] = PRESETS["small"] | {
     # On the five tasks it scored 60/200 against 60 and 62 without it (docs/learning.md "The proprio FiLM on the
     # five tasks"): the suite's failures are small-object grasps and PickPlace's instruction, not the gripper state.
     "proprio_film": False,
+    # Measured on the demo's two tasks only; the suite's paraphrases are amplified as much as its variations.
+    "lang_task_contrast": False,
     "per_task_bounds": True,
     "yaw_scan_px": 24,
     "optimizer_lr": 3e-3,
@@ -229,7 +236,9 @@ class SigmaConfig(PreTrainedConfig):
     # Amplify what tells a task's instructions apart: each training instruction's token states are read as its task's
     # mean plus g times its deviation from it, g giving the deviations the states' own norm (text_encoder.task_contrast;
     # instruction_tasks says the tasks). Stack's two orders, 0.985 apart, become about orthogonal.
-    lang_task_contrast: bool = False
+    # None = from preset (``small`` on: Stack's order read in the float32 demo's 700 steps, docs/learning.md "Stack's
+    # order in 700 steps"); a config saved before the option existed reads it off (SigmaConfig.from_pretrained).
+    lang_task_contrast: bool | None = None
 
     # ---- paper-vs-code choices (module docstring)
     num_queries: int = 1
@@ -436,15 +445,16 @@ class SigmaConfig(PreTrainedConfig):
     @classmethod
     def from_pretrained(cls, pretrained_name_or_path: str | Path, **kwargs: Any) -> SigmaConfig:
         """LeRobot's reader of a saved ``config.json``, after taking out the options sigma has retired
-        (sigma_policy/compat.py): a checkpoint saved before an option was removed loads if it left that option
-        off, and is refused, naming the file and the option, if it did not. A field saved before it existed takes
-        its default, or its preset's value (``heatmap_fusion`` of a config saved before 2026-12-06). Every reader of
-        a checkpoint's options goes through here; an invalid value is a ValueError naming the file."""
+                (sigma_policy/compat.py): a checkpoint saved before an option was removed loads if it left that option
+                off, and is refused, naming the file and the option, if it did not. A field saved before it existed takes
+                its default, or its preset's value (``heatmap_fusion`` of a config saved before 2026-12-06), except the options
+        that add no weights, which read as off (``lang_task_contrast``; compat.fill_added_off). Every reader of
+                a checkpoint's options goes through here; an invalid value is a ValueError naming the file."""
         config_file = Path(pretrained_name_or_path) / CONFIG_NAME
         if not config_file.is_file():  # a hub id, or no config: LeRobot's own reader says what is wrong
             return super().from_pretrained(pretrained_name_or_path, **kwargs)
         values = json.loads(config_file.read_text())
-        kept = drop_retired(values, str(config_file))
+        kept = fill_added_off(drop_retired(values, str(config_file)))
         try:
             if kept == values:
                 return super().from_pretrained(pretrained_name_or_path, **kwargs)

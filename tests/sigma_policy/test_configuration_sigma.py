@@ -127,6 +127,22 @@ def test_a_saved_checkpoint_acts_with_its_own_heatmap_fusion_or_else_its_presets
         SigmaConfig.from_pretrained(tmp_path)
 
 
+def test_the_instruction_contrast_is_small_s_and_a_config_saved_before_it_reads_it_off(tmp_path):
+    """``lang_task_contrast`` is on in ``small`` only (measured on the demo's two tasks); a config saved before the
+    option existed was trained without it and adds no weights to tell so, so it reads off, not as its preset."""
+    on = {
+        p: SigmaConfig(preset=p, device="cpu").lang_task_contrast for p in ("paper", "small", "suite", "gpu")
+    }
+    assert on == {"paper": False, "small": True, "suite": False, "gpu": False}
+    for saved, acting in (
+        ({"preset": "small"}, False),
+        ({"preset": "small", "lang_task_contrast": True}, True),
+        ({"preset": "suite", "lang_task_contrast": True}, True),
+    ):
+        (tmp_path / "config.json").write_text(json.dumps({"type": "sigma", "device": "cpu", **saved}))
+        assert SigmaConfig.from_pretrained(tmp_path).lang_task_contrast is acting, saved
+
+
 @pytest.mark.parametrize(
     ("views", "message"),
     [
