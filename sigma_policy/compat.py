@@ -23,7 +23,8 @@ warning, from the tensors the file holds, and ``SigmaPolicy`` rebuilds its netwo
 
 **Added options without weights.** An option that changes what the network reads but adds no tensor
 (``lang_task_contrast``) cannot be told from the weights; a config saved before it existed does not name it, and
-:func:`fill_added_off` reads it as off (the checkpoint was trained without it), not as today's preset.
+:func:`fill_added_off` reads it as off (the checkpoint was trained without it), not as today's preset. Stock
+``lerobot-eval``, which parses ``config.json`` itself, reads such a config with today's preset.
 """
 
 from __future__ import annotations

@@ -13,9 +13,9 @@ each task's instructions contrasted (``lang_task_contrast``: the float32 demo's 
 
 ``suite`` is ``small`` for several tasks at once: ``per_task_bounds=True`` (each task rendered in its own box),
 ``yaw_scan_px=24`` (the rotation-equivariant yaw scan), lr 3e-3 and a 7500-step decay, without the instruction
-contrast (not measured there). It is the suite benchmark's
-recipe (``benchmarks/bench_suite.py``; RESULTS.md "The suite on 2 CPU cores"): on four tasks ``small``'s lr 1e-2
-underfit with its 2000-step decay and diverged with a longer one, and the scan lifted NutAssembly from 2/80 to 15/80.
+contrast (not measured there). It is the suite benchmark's recipe (``benchmarks/bench_suite.py``; RESULTS.md "The
+suite on 2 CPU cores"): on four tasks ``small``'s lr 1e-2 underfit with its 2000-step decay and diverged with a
+longer one, and the scan lifted NutAssembly from 2/80 to 15/80.
 On PickPlace alone (100 demonstrations per variation, 6000 steps) it scored 28/80 against ``small``'s 20/80, and
 ``small`` with the scan but lr 1e-2 9/80 (single runs; docs/learning.md "PickPlace: why the grasps miss").
 
@@ -445,11 +445,11 @@ class SigmaConfig(PreTrainedConfig):
     @classmethod
     def from_pretrained(cls, pretrained_name_or_path: str | Path, **kwargs: Any) -> SigmaConfig:
         """LeRobot's reader of a saved ``config.json``, after taking out the options sigma has retired
-                (sigma_policy/compat.py): a checkpoint saved before an option was removed loads if it left that option
-                off, and is refused, naming the file and the option, if it did not. A field saved before it existed takes
-                its default, or its preset's value (``heatmap_fusion`` of a config saved before 2026-12-06), except the options
-        that add no weights, which read as off (``lang_task_contrast``; compat.fill_added_off). Every reader of
-                a checkpoint's options goes through here; an invalid value is a ValueError naming the file."""
+        (sigma_policy/compat.py): a checkpoint saved before an option was removed loads if it left that option
+        off, and is refused, naming the file and the option, if it did not. A field saved before it existed takes
+        its default, or its preset's value (``heatmap_fusion`` of a config saved before 2026-12-06), except an
+        option that adds no weights, which reads as off (``lang_task_contrast``; compat.fill_added_off). Every
+        reader of a checkpoint's options goes through here; an invalid value is a ValueError naming the file."""
         config_file = Path(pretrained_name_or_path) / CONFIG_NAME
         if not config_file.is_file():  # a hub id, or no config: LeRobot's own reader says what is wrong
             return super().from_pretrained(pretrained_name_or_path, **kwargs)
