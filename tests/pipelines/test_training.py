@@ -153,6 +153,7 @@ def test_a_preset_is_compared_by_the_values_it_fills(tmp_path):
         "optimizer_lr": 0.003,
         "scheduler_decay_steps": 6000,
         "proprio_film": False,  # on in today's small, off in suite
+        "lang_task_contrast": False,  # the same
     }
     by_hand = PRESETS["small"] | suite_options
     saved = {
