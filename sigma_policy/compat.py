@@ -100,7 +100,7 @@ def drop_retired(values: dict[str, Any], source: str) -> dict[str, Any]:
     return kept
 
 
-# Options a preset turns on that add no weights, each at its "off" value (module docstring, "Added options").
+# Options a preset turns on that add no weights, each at its "off" value (module docstring, "Added options without weights").
 ADDED_OFF: dict[str, Any] = {"lang_task_contrast": False}
 
 

@@ -131,8 +131,8 @@ class SigmaPolicy(PreTrainedPolicy):
         # Frozen and cached per instruction; kept outside the module tree so it is neither saved nor trained.
         self.__dict__["text_encoder"] = make_text_encoder(config.text_encoder, config.text_encoder_path)
         self._lang_cache: dict[str, tuple[Tensor, Tensor]] = {}
-        # lang_task_contrast's task mean per training instruction and its gain, computed on first use
-        self._task_contrast: tuple[dict[str, Tensor], Tensor] | None = None
+        # lang_task_contrast's token states per training instruction, computed on first use
+        self._task_contrast: dict[str, Tensor] | None = None
         self._build_network()
         self.renderer = VirtualViewRenderer(
             img_size=config.img_size,
@@ -548,20 +548,15 @@ class SigmaPolicy(PreTrainedPolicy):
     def _language(self, tasks: list[str]) -> tuple[Tensor, Tensor]:
         """(B, L, D_tok) tokens and (B, D_sent) sentence features, cached on the policy device per instruction;
         with ``lang_zero_padding`` the padding positions' token states are zeros, with ``lang_task_contrast`` a
-        training instruction's deviation from its task's mean is amplified (:meth:`_task_means`)."""
+        training instruction's deviation from its task's mean is amplified (:meth:`_contrasted_states`)."""
         missing = [s for s in dict.fromkeys(tasks) if s not in self._lang_cache]
         if missing:
             feats = self.text_encoder.encode(missing)
             tokens = self._token_states(feats)
             if self.config.lang_task_contrast:
-                means, gain = self._task_means()
+                contrasted = self._contrasted_states()
                 # an instruction outside the training set is read as it is
-                tokens = torch.stack(
-                    [
-                        means[s] + gain * (t - means[s]) if s in means else t
-                        for s, t in zip(missing, tokens, strict=True)
-                    ]
-                )
+                tokens = torch.stack([contrasted.get(s, t) for s, t in zip(missing, tokens, strict=True)])
             for i, s in enumerate(missing):
                 self._lang_cache[s] = (
                     tokens[i].to(self._device),
@@ -571,18 +566,16 @@ class SigmaPolicy(PreTrainedPolicy):
         sentence = torch.stack([self._lang_cache[s][1] for s in tasks])
         return tokens, sentence
 
-    def _task_means(self) -> tuple[dict[str, Tensor], Tensor]:
-        """Each training instruction's task mean of token states, and the gain (text_encoder.task_contrast)."""
+    def _contrasted_states(self) -> dict[str, Tensor]:
+        """Each training instruction's token states as ``lang_task_contrast`` reads them: its task's mean plus the
+        gain times its deviation from it (text_encoder.task_contrast); computed once."""
         if self._task_contrast is None:
             instructions = sorted(self.config.instruction_tasks)
-            means, gain = {}, torch.ones(())  # no task map: every instruction is read as it is
+            self._task_contrast = {}  # no task map: every instruction is read as it is
             if instructions:
-                states, gain = task_contrast(
-                    self._token_states(self.text_encoder.encode(instructions)),
-                    [self.config.instruction_tasks[s] for s in instructions],
-                )
-                means = dict(zip(instructions, states, strict=True))
-            self._task_contrast = means, gain
+                states = self._token_states(self.text_encoder.encode(instructions))
+                means, gain = task_contrast(states, [self.config.instruction_tasks[s] for s in instructions])
+                self._task_contrast = dict(zip(instructions, means + gain * (states - means), strict=True))
         return self._task_contrast
 
     def _token_states(self, feats: TextFeatures) -> Tensor:

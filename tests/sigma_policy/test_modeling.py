@@ -148,9 +148,8 @@ def test_task_contrast_reads_each_training_instruction_amplified_and_others_as_t
     gain = (read[0] - mean).norm() / (raw[0] - mean).norm()
     assert gain > 5
     torch.testing.assert_close(read[:2], mean + gain * (raw[:2] - mean))
-    torch.testing.assert_close(
-        read[2:], raw[2:]
-    )  # lift is alone in its task; the door is not a training instruction
+    # lift is alone in its task; the door is not a training instruction
+    torch.testing.assert_close(read[2:], raw[2:])
     torch.testing.assert_close(sentence, raw_sentence)
     _, unmapped, *_ = build(tiny_root, lang_task_contrast=True, instruction_tasks={})
     torch.testing.assert_close(unmapped._language(pair)[0], raw[:2])  # no task map: nothing to amplify
