@@ -8,7 +8,7 @@ only what a user may want to set. A checkpoint saved while such an option existe
 * a retired field at the value that meant "off" is dropped: the checkpoint was trained as today's code trains it;
 * a retired field at any other value is refused, with the field, its value and the docs/learning.md section that
   measured it. That checkpoint's network or inputs are not ones this code builds. The last commit that ran it is
-  :data:`LAST_COMMIT`.
+  the option's ``commit`` (:data:`LAST_COMMIT` for those removed on 2026-11-30).
 
 ``SigmaConfig.from_pretrained`` (so ``SigmaPolicy.from_pretrained``: ``sigma-eval``, ``sigma-diagnose``, ``sigma-viz
 policy``) and the benchmarks' reuse of a saved run (``pipelines/training.py``) read configs through it. Stock
@@ -47,7 +47,8 @@ __all__ = [
     "match_saved_modules",
 ]
 
-# The last commit of sigma whose code still has every option of RETIRED (git checkout it to rerun their commands).
+# The last commit of sigma whose code still has the options removed on 2026-11-30 (git checkout it to rerun their
+# commands); an option removed later names its own (Retired.commit).
 LAST_COMMIT = "6ce2291"
 
 _ANY = object()  # an option that acted only through another retired one: any saved value is dropped
@@ -55,17 +56,20 @@ _ANY = object()  # an option that acted only through another retired one: any sa
 
 @dataclass(frozen=True)
 class Retired:
-    """A removed option: the section of docs/learning.md that measured it, and the value that meant off
-    (``_ANY`` for an option that acted only through another retired one)."""
+    """A removed option: the section of docs/learning.md that measured it, the value that meant off (``_ANY`` for
+    an option that acted only through another retired one) and the last commit of sigma that has it."""
 
     section: str
     off: Any = _ANY
+    commit: str = LAST_COMMIT
 
 
 _STEM = "PickPlace: a convolutional stem for the small objects, and the milk carton's ridge"
 _HAND_MASK = "The hand hides what it is over"
 _MARKER = "The hand marker: the hand back as a pixel, and what it teaches"
 _ZOOM = "A zoomed second stage: one network at two scales"
+_PADDING = "Padding states and Stack's order"
+_SESSION_83 = "1c398d5"  # the last commit with lang_zero_padding and decoder_lang_film
 
 RETIRED: dict[str, Retired] = {
     "stem_layers": Retired(_STEM, off=0),
@@ -77,6 +81,8 @@ RETIRED: dict[str, Retired] = {
     "zoom_share": Retired(_ZOOM),  # these three only with zoom_box_m
     "zoom_jitter_m": Retired(_ZOOM),
     "zoom_at_inference": Retired(_ZOOM),
+    "lang_zero_padding": Retired(_PADDING, off=False, commit=_SESSION_83),
+    "decoder_lang_film": Retired(_PADDING, off=False, commit=_SESSION_83),
 }
 
 
@@ -95,7 +101,7 @@ def drop_retired(values: dict[str, Any], source: str) -> dict[str, Any]:
             continue
         raise RetiredOptionError(
             f"{source}: policy.{name}={value!r} is an option sigma tried and removed (docs/learning.md "
-            f'"{option.section}"): this version cannot build that policy; sigma at commit {LAST_COMMIT} can'
+            f'"{option.section}"): this version cannot build that policy; sigma at commit {option.commit} can'
         )
     return kept
 

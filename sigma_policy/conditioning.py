@@ -2,9 +2,7 @@
 instruction (:class:`LanguageFiLM`) or from the proprio vector (:class:`ProprioFiLM`).
 
 Where :mod:`sigma_policy.network` applies them: ``lang_film`` and ``proprio_film`` to the image tokens entering
-fusion (step 5); ``decoder_lang_film`` to the translation decoder's full-resolution inputs (step 6), the upsampled
-tokens beside the per-pixel features ``d0`` and the local features, so a word can select a colour pixel by pixel
-(CLIPort's language-times-decoder fusion, Shridhar et al. 2021, arXiv 2109.12098)."""
+fusion (step 5)."""
 
 from __future__ import annotations
 
@@ -29,23 +27,13 @@ class LanguageFiLM(nn.Module):
         self.out = DenseBlock(length * code_dim, 2 * dim, act=False)
 
     def forward(self, lang_tokens: Tensor, img: Tensor) -> Tensor:
-        gamma, beta = self.coefficients(lang_tokens).unsqueeze(1).chunk(2, dim=-1)
-        return img * (1 + gamma) + beta
-
-    def coefficients(self, lang_tokens: Tensor) -> Tensor:
-        """(B, L, D_tok) -> (B, 2 dim): gamma then beta, for callers whose features are not (B, N, dim) tokens."""
+        """(B, L, D_tok) language tokens and (B, N, dim) image tokens -> the image tokens scaled and shifted."""
         if lang_tokens.shape[1] != self.length:
             raise ValueError(
                 f"LanguageFiLM expects {self.length} language tokens, got {lang_tokens.shape[1]}"
             )
-        return self.out(self.token_proj(lang_tokens).flatten(1))
-
-    def modulate_maps(self, lang_tokens: Tensor, maps: Tensor) -> Tensor:
-        """Feature maps (B*V, dim, H, W), V views per instruction -> the same, scaled and shifted per channel."""
-        coeff = self.coefficients(lang_tokens).to(maps.dtype)
-        v = maps.shape[0] // coeff.shape[0]
-        gamma, beta = coeff.repeat_interleave(v, dim=0)[:, :, None, None].chunk(2, dim=1)
-        return maps * (1 + gamma) + beta
+        gamma, beta = self.out(self.token_proj(lang_tokens).flatten(1)).unsqueeze(1).chunk(2, dim=-1)
+        return img * (1 + gamma) + beta
 
 
 class ProprioFiLM(nn.Module):

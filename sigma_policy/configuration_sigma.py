@@ -228,11 +228,6 @@ class SigmaConfig(PreTrainedConfig):
     # Instruction FiLM on the image tokens before fusion (network.LanguageFiLM; None = from preset: paper False,
     # small True).
     lang_film: bool | None = None
-    # Instruction FiLM on the translation decoder's full-resolution inputs (network_config.NetworkConfig).
-    decoder_lang_film: bool = False
-    # Zero the text encoder's states at padding positions before the network reads them (text_encoder.TextFeatures):
-    # fusion's language tokens and lang_film's ordered code then hold the instruction's words only.
-    lang_zero_padding: bool = False
     # Amplify what tells a task's instructions apart: each training instruction's token states are read as its task's
     # mean plus g times its deviation from it, g giving the deviations the states' own norm (text_encoder.task_contrast;
     # instruction_tasks says the tasks). Stack's two orders, 0.985 apart, become about orthogonal.

@@ -59,7 +59,7 @@ from sigma_policy.test_time import (
     transform_points,
     yaw_about_box_centre,
 )
-from sigma_policy.text_encoder import TextFeatures, make_text_encoder, task_contrast
+from sigma_policy.text_encoder import make_text_encoder, task_contrast
 from sigma_policy.views import view_indices
 from sigma_policy.weight_average import WeightAverage
 
@@ -547,12 +547,12 @@ class SigmaPolicy(PreTrainedPolicy):
 
     def _language(self, tasks: list[str]) -> tuple[Tensor, Tensor]:
         """(B, L, D_tok) tokens and (B, D_sent) sentence features, cached on the policy device per instruction;
-        with ``lang_zero_padding`` the padding positions' token states are zeros, with ``lang_task_contrast`` a
-        training instruction's deviation from its task's mean is amplified (:meth:`_contrasted_states`)."""
+        with ``lang_task_contrast`` a training instruction's deviation from its task's mean is amplified
+        (:meth:`_contrasted_states`)."""
         missing = [s for s in dict.fromkeys(tasks) if s not in self._lang_cache]
         if missing:
             feats = self.text_encoder.encode(missing)
-            tokens = self._token_states(feats)
+            tokens = feats.tokens.detach().float()
             if self.config.lang_task_contrast:
                 contrasted = self._contrasted_states()
                 # an instruction outside the training set is read as it is
@@ -573,22 +573,10 @@ class SigmaPolicy(PreTrainedPolicy):
             instructions = sorted(self.config.instruction_tasks)
             self._task_contrast = {}  # no task map: every instruction is read as it is
             if instructions:
-                states = self._token_states(self.text_encoder.encode(instructions))
+                states = self.text_encoder.encode(instructions).tokens.detach().float()
                 means, gain = task_contrast(states, [self.config.instruction_tasks[s] for s in instructions])
                 self._task_contrast = dict(zip(instructions, means + gain * (states - means), strict=True))
         return self._task_contrast
-
-    def _token_states(self, feats: TextFeatures) -> Tensor:
-        """The encoder's (N, L, D_tok) token states as float32, the padding zeroed with ``lang_zero_padding``."""
-        tokens = feats.tokens.detach().float()
-        if self.config.lang_zero_padding:
-            if feats.mask is None:
-                raise ValueError(
-                    "policy.lang_zero_padding needs the text encoder's padding mask, and this feature table "
-                    "records none: write it again with sigma-encode"
-                )
-            tokens = tokens * feats.mask.to(tokens)[..., None]
-        return tokens
 
     def _proprio(self, batch: dict[str, Any], bounds: Tensor, transforms: Tensor | None) -> Tensor | None:
         """The proprio token's input (sigma_policy/observation.py, ``proprio_input``)."""

@@ -16,9 +16,8 @@ T = ``img_size // patch_size`` patches per side, D = ``attn_dim``, L = language 
    image tokens are first scaled and shifted by an ordered code of the tokens, and with ``proprio_film`` by a
    linear map of the proprio vector (:mod:`sigma_policy.conditioning`).
 6. Decoder: image tokens -> Linear D -> c -> per view conv k at T x T, bilinear x patch_size, conv k, concat ``d0``
-   (and, with ``local_in_decoder``, the local features of step 7), with ``decoder_lang_film`` (not in the paper)
-   scaled and shifted per channel by an ordered code of the instruction's tokens, conv 3x3 -> ``u`` (BV,
-   ``final_dim``, H, W) -> conv 3x3 -> translation logits (B, V, H, W).
+   (and, with ``local_in_decoder``, the local features of step 7), conv 3x3 -> ``u`` (BV, ``final_dim``, H, W)
+   -> conv 3x3 -> translation logits (B, V, H, W).
 7. Heads: [max over tokens (c*V, channel-major), heatmap-weighted sum of ``u`` (V*final_dim, view-major)] -> MLP
    -> 3 x ``num_rotation_bins`` Euler-bin logits, 2 gripper logits, 2 collision logits. Not in the paper, all
    off in ``paper``: ``local_channels`` adds a heatmap-weighted sum of full-resolution local features
@@ -125,11 +124,6 @@ class SigmaNetwork(nn.Module):
         self.upsample = BilinearUpsample(t, cfg.patch_size, pad=k // 2)
         self.up_conv1 = ConvBlock(c, c, kernel=k, pre_padded=True)
         decoder_in = 2 * c + cfg.local_channels * cfg.local_in_decoder
-        self.decoder_film = (
-            LanguageFiLM(lang_token_dim, lang_length, decoder_in, cfg.lang_film_code_dim)
-            if cfg.decoder_lang_film
-            else None
-        )
         self.final = ConvBlock(decoder_in, cfg.final_dim, kernel=3)
         self.trans_decoder = ConvBlock(cfg.final_dim, 1, kernel=3, act=False)
 
@@ -273,8 +267,6 @@ class SigmaNetwork(nn.Module):
             else None
         )
         decoder_in = torch.cat([x, d0, local] if cfg.local_in_decoder else [x, d0], dim=1)
-        if self.decoder_film is not None:
-            decoder_in = self.decoder_film.modulate_maps(lang_tokens, decoder_in)
         u = self.final(decoder_in)  # (BV, final_dim, H, W)
         trans = self.trans_decoder(u).reshape(b, cfg.num_views, cfg.img_size, cfg.img_size)
 

@@ -56,10 +56,6 @@ class NetworkConfig:
     # apart (cosine) but distinct codes.
     lang_film: bool = False
     lang_film_code_dim: int = 8
-    # The same kind of instruction FiLM on the translation decoder's full-resolution inputs (the upsampled tokens,
-    # ``d0`` and the local features), so the instruction can weigh a colour where each pixel sees it instead of
-    # only through the 8 x 8-pixel tokens (sigma_policy/conditioning.py).
-    decoder_lang_film: bool = False
     proprio_dim: int = 3
     # The proprio vector also enters the rotation/gripper/collision MLP directly (not only as a fusion token).
     proprio_in_heads: bool = False

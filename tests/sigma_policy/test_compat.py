@@ -40,6 +40,8 @@ def test_off_values_are_dropped_and_anything_else_is_refused_by_name():
         "zoom_share": 0.5,
         "zoom_jitter_m": 0.05,
         "zoom_at_inference": True,
+        "lang_zero_padding": False,
+        "decoder_lang_film": False,
     }
     assert drop_retired(saved, "ckpt/config.json") == {"preset": "suite"}
     for name, value in (
@@ -53,5 +55,9 @@ def test_off_values_are_dropped_and_anything_else_is_refused_by_name():
         ) as e:
             drop_retired(saved | {name: value}, "ckpt/config.json")
         assert RETIRED[name].section in str(e.value)
+        assert str(e.value).endswith("sigma at commit 6ce2291 can")
+    # an option removed later names the last commit that has it
+    with pytest.raises(RetiredOptionError, match=r"decoder_lang_film=True .* sigma at commit 1c398d5 can$"):
+        drop_retired(saved | {"decoder_lang_film": True}, "ckpt/config.json")
     # an option that acted only through another retired one is dropped at any value
     assert drop_retired({"zoom_share": 0.9, "hand_mask_views": "top"}, "x") == {}

@@ -120,21 +120,6 @@ def test_first_keyframe_weight_scales_the_first_frames_bc_loss_and_keeps_the_bat
         SigmaConfig(first_keyframe_weight=0.0)
 
 
-def test_zero_padding_keeps_the_instructions_tokens_and_zeros_the_padding_states(tiny_root):
-    """``lang_zero_padding``: the network reads the instruction's own token states and zeros where MiniLM pads
-    (those states are not zeros: BERT's padding positions attend to the sentence); the sentence feature is kept."""
-    instruction = "stack the red cube on the green cube"
-    _, zeroed_policy, *_ = build(tiny_root, lang_zero_padding=True)
-    _, plain_policy, *_ = build(tiny_root)
-    zeroed, sentence = zeroed_policy._language([instruction, instruction])
-    raw, raw_sentence = plain_policy._language([instruction])
-    n = int(zeroed_policy.text_encoder.encode([instruction]).mask.sum())
-    assert 3 < n < 20 and zeroed.shape == (2, 77, 384)
-    torch.testing.assert_close(zeroed[0, :n], raw[0, :n])
-    assert zeroed[:, n:].abs().amax() == 0 and raw[0, n:].abs().amax() > 0.1
-    torch.testing.assert_close(sentence[0], raw_sentence[0])
-
-
 def test_task_contrast_reads_each_training_instruction_amplified_and_others_as_they_are(tiny_root):
     """``lang_task_contrast``: the two instructions of one task are read as their mean plus the gain times their
     deviation (sigma_policy/text_encoder.task_contrast); an instruction outside ``instruction_tasks`` is untouched."""
