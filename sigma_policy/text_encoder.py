@@ -59,15 +59,11 @@ MINILM_SHA256 = "53aa51172d142c89d9012cce15ae4d6cc0ca6895895114379cacb4fab128d9d
 
 @dataclass
 class TextFeatures:
-    """``tokens (B, L, D_tok)`` per-token features, ``sentence (B, D_sent)`` one vector per instruction and
-    ``mask (B, L)``, 1 where a token is the instruction's and 0 where it pads to ``max_length`` (None: a table
-    written before masks were recorded). A padding position's state is not empty: BERT's attends to the sentence,
-    so MiniLM's 70-odd padding states hold most of the tokens' norm and say much the same thing for every word
-    order (docs/learning.md "Padding states and Stack's order")."""
+    """``tokens (B, L, D_tok)`` per-token features (padded to ``max_length``) and ``sentence (B, D_sent)`` one vector
+    per instruction."""
 
     tokens: Tensor
     sentence: Tensor
-    mask: Tensor | None = None
 
 
 def task_contrast(tokens: Tensor, tasks: list[str]) -> tuple[Tensor, Tensor]:
@@ -106,7 +102,7 @@ class TextEncoder(nn.Module):
 
     def __init__(self) -> None:
         super().__init__()
-        self._cache: dict[str, tuple[Tensor, Tensor, Tensor | None]] = {}
+        self._cache: dict[str, tuple[Tensor, Tensor]] = {}
         self.calls = 0  # number of batched model runs (instructions not yet cached)
 
     def _freeze(self) -> None:
@@ -130,19 +126,14 @@ class TextEncoder(nn.Module):
             self.calls += 1
             feats = self._encode_uncached(missing)
             for i, s in enumerate(missing):
-                mask = None if feats.mask is None else feats.mask[i].detach().float().clone()
-                self._cache[s] = (feats.tokens[i].detach().clone(), feats.sentence[i].detach().clone(), mask)
+                self._cache[s] = (feats.tokens[i].detach().clone(), feats.sentence[i].detach().clone())
         if not instructions:
             return TextFeatures(
-                torch.zeros(0, self.max_length, self.token_dim),
-                torch.zeros(0, self.sentence_dim),
-                torch.zeros(0, self.max_length),
+                torch.zeros(0, self.max_length, self.token_dim), torch.zeros(0, self.sentence_dim)
             )
-        masks = [self._cache[s][2] for s in instructions]
         return TextFeatures(
             tokens=torch.stack([self._cache[s][0] for s in instructions]),
             sentence=torch.stack([self._cache[s][1] for s in instructions]),
-            mask=None if any(m is None for m in masks) else torch.stack(masks),
         )
 
     def _device(self) -> torch.device:
@@ -180,7 +171,7 @@ class CLIPTextEncoder(TextEncoder):
     def _encode_uncached(self, instructions: list[str]) -> TextFeatures:
         batch = self._tokenize(instructions)
         out = self.model(input_ids=batch["input_ids"])  # no attention mask: as CLIP/Σ (causal attention)
-        return TextFeatures(out.last_hidden_state, out.pooler_output, batch["attention_mask"].float())
+        return TextFeatures(out.last_hidden_state, out.pooler_output)
 
 
 def minilm_model_dir() -> Path:
@@ -250,7 +241,7 @@ class MiniLMTextEncoder(TextEncoder):
         mask = batch["attention_mask"].to(hidden.dtype)  # (B, L)
         m = mask.unsqueeze(-1)
         mean = (hidden * m).sum(1) / m.sum(1).clamp_min(1e-9)
-        return TextFeatures(hidden, nn.functional.normalize(mean, dim=-1), mask)
+        return TextFeatures(hidden, nn.functional.normalize(mean, dim=-1))
 
 
 def save_text_features(encoder: TextEncoder, instructions: list[str], path: str | Path) -> Path:
@@ -268,8 +259,6 @@ def save_text_features(encoder: TextEncoder, instructions: list[str], path: str 
         "instructions": json.dumps(unique),
     }
     tensors = {"tokens": feats.tokens.float().contiguous(), "sentence": feats.sentence.float().contiguous()}
-    if feats.mask is not None:
-        tensors["mask"] = feats.mask.float().contiguous()
     with atomic_path(path) as tmp:
         save_file(tensors, tmp, metadata=meta)
     return path
@@ -314,13 +303,9 @@ class TextFeatureTable(TextEncoder):
         self.max_length = int(meta["max_length"])
         if tokens.shape[1] != self.max_length:
             raise ValueError(f"{self.path}: max_length {self.max_length} but tokens {tuple(tokens.shape)}")
-        mask = tensors.get("mask")  # absent from tables written before masks were recorded
-        if mask is not None and tuple(mask.shape) != tuple(tokens.shape[:2]):
-            raise ValueError(f"{self.path}: mask {tuple(mask.shape)} but tokens {tuple(tokens.shape)}")
+        # Tables written from 2026-12-07 to 12-08 (sessions 83-85) also hold the tokenizer's "mask"; nothing reads it.
         self.token_dim, self.sentence_dim = tokens.shape[2], sentence.shape[1]
-        self._cache = {
-            s: (tokens[i], sentence[i], None if mask is None else mask[i]) for i, s in enumerate(instructions)
-        }
+        self._cache = {s: (tokens[i], sentence[i]) for i, s in enumerate(instructions)}
 
     def _encode_uncached(self, instructions: list[str]) -> TextFeatures:
         known = ", ".join(repr(s) for s in self._cache)

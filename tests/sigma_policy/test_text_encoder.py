@@ -8,6 +8,7 @@ from pathlib import Path
 
 import pytest
 import torch
+from safetensors import safe_open
 from safetensors.torch import save_file
 from transformers import CLIPTextConfig, CLIPTextModel
 
@@ -76,8 +77,7 @@ def test_clip_encoder_features_and_cache(tmp_path: Path) -> None:
     ids = enc.tokenizer(texts[0])["input_ids"]
     assert len(ids) == 7  # <sot> pick up the red cube <eot>: the tiny BPE merges whole words
     torch.testing.assert_close(feats.sentence[0], feats.tokens[0, len(ids) - 1])
-    # The mask marks the instruction's own tokens; the 70 padding states behind them are not zeros.
-    assert feats.mask.shape == (3, 77) and feats.mask[0].tolist() == [1.0] * 7 + [0.0] * 70
+    # The 70 padding states behind the instruction's 7 tokens are not zeros (the network reads all 77).
     assert feats.tokens[0, 7:].abs().amax() > 0
     # Cached instructions never re-run the model; a new one runs it once more.
     enc.encode(["stack red on green"])
@@ -158,7 +158,6 @@ def test_table_returns_the_encoders_features(clip, tmp_path: Path, monkeypatch) 
     assert table.identity == enc.identity == f"clip:{path}"
     want, got = enc.encode(TABLE_INSTRUCTIONS[::-1]), table.encode(TABLE_INSTRUCTIONS[::-1])
     assert torch.equal(want.tokens, got.tokens) and torch.equal(want.sentence, got.sentence)
-    assert torch.equal(want.mask, got.mask)
     with pytest.raises(KeyError, match=r"f\.safetensors: no features for the instruction\(s\) \['lift it'\]"):
         table.encode(["lift it"])
     # the encoder itself when asked for (sigma-encode), or with the variable unset
@@ -212,8 +211,9 @@ def test_bad_tables_are_named(clip, tmp_path: Path) -> None:
         save_text_features(enc, [], tmp_path / "empty.safetensors")
 
 
-def test_a_table_written_before_masks_were_recorded_still_reads(clip, tmp_path: Path) -> None:
-    """Tables without the ``mask`` tensor (written before it existed) give features without a mask."""
+def test_a_table_that_holds_the_tokenizers_mask_still_reads(clip, tmp_path: Path) -> None:
+    """Tables written in sessions 83-85 also hold a ``mask`` tensor (the tokenizer's attention mask); it is ignored
+    and the features are the encoder's; new tables hold the features only."""
     _, enc = clip
     feats = enc.encode(TABLE_INSTRUCTIONS)
     meta = {
@@ -223,23 +223,13 @@ def test_a_table_written_before_masks_were_recorded_still_reads(clip, tmp_path: 
         "instructions": json.dumps(TABLE_INSTRUCTIONS),
     }
     old = tmp_path / "old.safetensors"
-    save_file(
-        {"tokens": feats.tokens.contiguous(), "sentence": feats.sentence.contiguous()}, old, metadata=meta
-    )
+    tensors = {"tokens": feats.tokens.contiguous(), "sentence": feats.sentence.contiguous()}
+    save_file({**tensors, "mask": torch.ones(len(TABLE_INSTRUCTIONS), 77)}, old, metadata=meta)
     got = TextFeatureTable(old).encode(TABLE_INSTRUCTIONS)
-    assert got.mask is None and torch.equal(got.tokens, feats.tokens)
-    bad = tmp_path / "bad_mask.safetensors"
-    save_file(
-        {
-            "tokens": feats.tokens.contiguous(),
-            "sentence": feats.sentence.contiguous(),
-            "mask": torch.ones(1, 5),
-        },
-        bad,
-        metadata=meta,
-    )
-    with pytest.raises(ValueError, match=r"bad_mask\.safetensors: mask \(1, 5\) but tokens"):
-        TextFeatureTable(bad)
+    assert torch.equal(got.tokens, feats.tokens) and torch.equal(got.sentence, feats.sentence)
+    written = save_text_features(enc, TABLE_INSTRUCTIONS, tmp_path / "new.safetensors")
+    with safe_open(written, "pt") as f:
+        assert sorted(f.keys()) == ["sentence", "tokens"]
 
 
 def test_task_contrast_amplifies_what_tells_a_tasks_instructions_apart() -> None:
