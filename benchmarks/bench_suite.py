@@ -33,7 +33,8 @@ into its own run directory (``runs/seed<S>_decay<D>_lr<LR>``, then ``_batch<B>``
 at batch 8, ``gpu`` 3000 at batch 64). On a CPU without native bf16 the network trains in float32, where a step
 costs about twice as much, so there the CPU presets default to 30 demonstrations per variation and 4500 steps
 (``FLOAT32_BUDGET``), which keep one training seed's run, collection to table, within 2 hours on 2 cores
-(docs/learning.md "The suite in float32"); the run's first line says which budget it chose.
+(docs/learning.md "The suite in float32"), with each task's instructions contrasted (``FLOAT32_ARGS``, docs/learning.md
+"The suite in float32, with the instructions contrasted"); the run's first line says which budget it chose.
 
 The defaults are the best five-task recipe for the Σ-agent measured on 2 CPU cores (docs/learning.md "50
 demonstrations per variation at 7500 steps, a third draw" and, for the fourth draw, "Contrastive vs BC-only at the
@@ -78,6 +79,10 @@ DEFAULT_EPISODES = 50
 # fewer demonstrations per variation and steps: the budget that keeps one training seed's whole run (collection to
 # table) within 2 hours on 2 cores (docs/learning.md "The suite in float32").
 FLOAT32_BUDGET = (30, 4500)  # (episodes, steps)
+# ... and contrast each task's instructions (docs/method.md §5.3), as the float32 demo does (`small`): 4500 float32
+# steps read Stack's order only in part without it (docs/learning.md "The suite in float32, with the instructions
+# contrasted"). Added to `--policy_args` unless they name the option.
+FLOAT32_ARGS = ["--policy.lang_task_contrast=true"]
 STAGES = ("collect", "train", "evaluate")
 
 
@@ -137,6 +142,8 @@ class SuiteBenchConfig:
         self._float32_budget = self._defaults_to_float32_budget()
         if self._float32_budget:
             episodes, steps = FLOAT32_BUDGET
+            named = {a.split("=")[0] for a in self.policy_args}
+            self.policy_args += [a for a in FLOAT32_ARGS if a.split("=")[0] not in named]
         self.episodes = self.episodes or episodes
         self.steps = self.steps or steps
         self.batch_size = self.batch_size or batch_size
@@ -159,8 +166,9 @@ class SuiteBenchConfig:
         if self._float32_budget:
             line += (
                 f" (this CPU has no native bf16, so the network trains in float32: the defaults are then "
-                f"--episodes {FLOAT32_BUDGET[0]} --steps {FLOAT32_BUDGET[1]}, which keep one seed within 2 hours on 2 "
-                f"cores; --episodes {DEFAULT_EPISODES} --steps {DEFAULT_BUDGET[0]} is the recipe measured in bf16)"
+                f"--episodes {FLOAT32_BUDGET[0]} --steps {FLOAT32_BUDGET[1]} and {' '.join(FLOAT32_ARGS)}, which keep one "
+                f"seed within 2 hours on 2 cores; --episodes {DEFAULT_EPISODES} --steps {DEFAULT_BUDGET[0]} is the "
+                f"recipe measured in bf16)"
             )
         return line
 

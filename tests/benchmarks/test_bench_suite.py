@@ -8,7 +8,14 @@ import draccus
 import pytest
 
 import sigma_policy.modeling_sigma
-from benchmarks.bench_suite import DEFAULT_BUDGET, FLOAT32_BUDGET, SUITE_ARGS, SuiteBenchConfig, markdown
+from benchmarks.bench_suite import (
+    DEFAULT_BUDGET,
+    FLOAT32_ARGS,
+    FLOAT32_BUDGET,
+    SUITE_ARGS,
+    SuiteBenchConfig,
+    markdown,
+)
 from benchmarks.training_runs import collect_train_and_heldout
 from pipelines.collecting import demonstration_config
 
@@ -100,18 +107,27 @@ def test_the_budget_defaults_to_the_presets():
 def test_a_cpu_without_native_bf16_defaults_to_the_float32_budget(monkeypatch):
     """Without native bf16 the step runs in float32 at about twice the cost: unset ``--episodes`` and ``--steps``
     become ``FLOAT32_BUDGET`` (one seed within 2 hours on 2 cores), and the start line says so; naming either keeps
-    the other at the bf16 recipe's value; the `gpu` preset and a GPU keep theirs."""
+    the other at the bf16 recipe's value; the `gpu` preset and a GPU keep theirs. The float32 budget contrasts the
+    tasks' instructions unless ``--policy_args`` name the option."""
     monkeypatch.setattr(sigma_policy.modeling_sigma, "cpu_has_native_bf16", lambda: False)
     plain = draccus.parse(SuiteBenchConfig, args=[])
     assert (plain.episodes, plain.steps, plain.batch_size) == (*FLOAT32_BUDGET, 8)
-    assert plain.run_dir(0).name == f"seed0_decay{FLOAT32_BUDGET[1]}_lr0.003"
+    assert (
+        plain.policy_args == [*SUITE_ARGS, *FLOAT32_ARGS] == [*SUITE_ARGS, "--policy.lang_task_contrast=true"]
+    )
+    assert plain.run_dir(0).name == f"seed0_decay{FLOAT32_BUDGET[1]}_lr0.003_lang_task_contrast-true"
+    assert "--policy.lang_task_contrast=true" in plain.train_run(0, plain.output_dir).command()
     assert "float32" in plain.budget_line() and f"--steps {DEFAULT_BUDGET[0]}" in plain.budget_line()
+    assert "lang_task_contrast" in plain.budget_line()
+    off = draccus.parse(SuiteBenchConfig, args=["--policy_args", "[--policy.lang_task_contrast=false]"])
+    assert off.policy_args == ["--policy.lang_task_contrast=false"] and off.steps == FLOAT32_BUDGET[1]
     steps_given = draccus.parse(SuiteBenchConfig, args=["--steps", "3000", "--batch_size", "64"])
     # Scoring a GPU run's 50-per-variation data.
     assert (steps_given.episodes, steps_given.steps) == (50, 3000)
     assert "float32" not in steps_given.budget_line()
     episodes_given = draccus.parse(SuiteBenchConfig, args=["--episodes", "30"])
     assert (episodes_given.episodes, episodes_given.steps) == (30, DEFAULT_BUDGET[0])
+    assert episodes_given.policy_args == SUITE_ARGS
     assert draccus.parse(SuiteBenchConfig, args=["--preset", "gpu"]).steps == 3000
     on_gpu = draccus.parse(SuiteBenchConfig, args=["--device", "cuda"])
     assert (on_gpu.episodes, on_gpu.steps) == (50, DEFAULT_BUDGET[0])
