@@ -143,7 +143,8 @@ class SuiteBenchConfig:
         if self._float32_budget:
             episodes, steps = FLOAT32_BUDGET
             named = {a.split("=")[0] for a in self.policy_args}
-            self.policy_args += [a for a in FLOAT32_ARGS if a.split("=")[0] not in named]
+            # a new list: the caller's (or a default's) stays as it was given
+            self.policy_args = [*self.policy_args, *(a for a in FLOAT32_ARGS if a.split("=")[0] not in named)]
         self.episodes = self.episodes or episodes
         self.steps = self.steps or steps
         self.batch_size = self.batch_size or batch_size
